@@ -1,0 +1,118 @@
+"""``model_metadata.json``: action space, sensors, network and algorithm of a model."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from laplab.env.action_space import ActionSpace, ActionSpaceError, default_action_space, parse_action_space
+
+CAMERA_SENSORS = ("FRONT_FACING_CAMERA", "STEREO_CAMERAS", "LEFT_CAMERA")
+LIDAR_SENSORS = ("LIDAR", "SECTOR_LIDAR", "DISCRETIZED_SECTOR_LIDAR")
+STATE_SENSOR = "STATE"  # laplab's own vector sensor (see laplab.sensors.state_vector)
+ALL_SENSORS = CAMERA_SENSORS + LIDAR_SENSORS + (STATE_SENSOR,)
+NETWORKS = ("DEEP_CONVOLUTIONAL_NETWORK_SHALLOW", "DEEP_CONVOLUTIONAL_NETWORK", "DEEP_CONVOLUTIONAL_NETWORK_DEEP")
+ALGORITHMS = ("clipped_ppo", "sac")
+
+
+class MetadataError(ValueError):
+    """A model_metadata.json that DeepRacer (or laplab) would not accept."""
+
+
+@dataclass(frozen=True)
+class ModelMetadata:
+    """A parsed model_metadata.json. laplab's default sensor is ``STATE`` (trains in seconds);
+    DeepRacer's is ``FRONT_FACING_CAMERA``."""
+
+    action_space: ActionSpace = field(default_factory=default_action_space)
+    sensors: tuple[str, ...] = (STATE_SENSOR,)
+    neural_network: str = NETWORKS[0]
+    training_algorithm: str = "clipped_ppo"
+    version: str = "5"
+    lidar_config: dict | None = None
+
+    @property
+    def camera(self) -> str | None:
+        return next((s for s in self.sensors if s in CAMERA_SENSORS), None)
+
+    @property
+    def lidar(self) -> str | None:
+        return next((s for s in self.sensors if s in LIDAR_SENSORS), None)
+
+    def to_dict(self) -> dict:
+        out = {"action_space": self.action_space.to_json(), "sensor": list(self.sensors),
+               "neural_network": self.neural_network, "training_algorithm": self.training_algorithm,
+               "action_space_type": self.action_space.kind, "version": self.version}
+        if self.lidar_config is not None:
+            out["lidar_config"] = dict(self.lidar_config)
+        return out
+
+
+def validate_sensors(sensors: object, source: str) -> tuple[str, ...]:
+    """Exactly one camera or the STATE sensor, at most one lidar, no unknown or repeated names."""
+    if isinstance(sensors, str):
+        sensors = [sensors]
+    if not isinstance(sensors, list) or not sensors or not all(isinstance(s, str) for s in sensors):
+        raise MetadataError(f"{source}: 'sensor' must be a non-empty list of sensor names, got {sensors!r}.")
+    unknown = [s for s in sensors if s not in ALL_SENSORS]
+    if unknown:
+        raise MetadataError(f"{source}: unknown sensor {unknown[0]!r} in 'sensor'; known: {', '.join(ALL_SENSORS)}.")
+    if len(set(sensors)) != len(sensors):
+        raise MetadataError(f"{source}: 'sensor' lists a sensor twice: {sensors}.")
+    cameras = [s for s in sensors if s in CAMERA_SENSORS]
+    lidars = [s for s in sensors if s in LIDAR_SENSORS]
+    if len(cameras) > 1:
+        raise MetadataError(f"{source}: a model has exactly one camera sensor, this one lists {cameras}.")
+    if len(lidars) > 1:
+        raise MetadataError(f"{source}: a model has at most one lidar sensor, this one lists {lidars}.")
+    if not cameras and STATE_SENSOR not in sensors:
+        raise MetadataError(f"{source}: a model needs one camera sensor ({', '.join(CAMERA_SENSORS)}) "
+                            f"or laplab's STATE sensor; 'sensor' lists only {sensors}.")
+    return tuple(sensors)
+
+
+def metadata_from_dict(data: object, source: str = "model_metadata.json") -> ModelMetadata:
+    """Validate a model_metadata.json object; errors name the file and the key."""
+    if not isinstance(data, dict):
+        raise MetadataError(f"{source}: must hold a JSON object, got {type(data).__name__}.")
+    known = {"action_space", "sensor", "neural_network", "training_algorithm", "action_space_type",
+             "version", "lidar_config", "preprocess_type", "regional_parameters"}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise MetadataError(f"{source}: unknown key {unknown[0]!r}; known keys: {', '.join(sorted(known))}.")
+    try:
+        action_space = (parse_action_space(data["action_space"], data.get("action_space_type"), source)
+                        if "action_space" in data else default_action_space())
+    except ActionSpaceError as exc:
+        raise MetadataError(str(exc)) from None
+    sensors = validate_sensors(data.get("sensor", [STATE_SENSOR]), source)
+    network = data.get("neural_network", NETWORKS[0])
+    if network not in NETWORKS:
+        raise MetadataError(f"{source}: neural_network {network!r} is not one of {', '.join(NETWORKS)}.")
+    algorithm = data.get("training_algorithm", "clipped_ppo")
+    if algorithm not in ALGORITHMS:
+        raise MetadataError(f"{source}: training_algorithm {algorithm!r} is not one of {', '.join(ALGORITHMS)}.")
+    if algorithm == "sac" and action_space.is_discrete:
+        raise MetadataError(f"{source}: training_algorithm 'sac' needs a continuous action space "
+                            "(action_space_type 'continuous').")
+    lidar_config = data.get("lidar_config")
+    if lidar_config is not None:
+        if not isinstance(lidar_config, dict):
+            raise MetadataError(f"{source}: lidar_config must be an object, got {lidar_config!r}.")
+        for key in ("num_sectors", "num_values_per_sector", "clipping_dist"):
+            if key in lidar_config and not (isinstance(lidar_config[key], (int, float)) and lidar_config[key] > 0):
+                raise MetadataError(f"{source}: lidar_config.{key} must be a positive number, got {lidar_config[key]!r}.")
+    return ModelMetadata(action_space, sensors, network, algorithm, str(data.get("version", "5")), lidar_config)
+
+
+def load_model_metadata(path: str | Path) -> ModelMetadata:
+    """Read and validate a model_metadata.json file."""
+    path = Path(path)
+    if not path.is_file():
+        raise MetadataError(f"{path}: no such file.")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise MetadataError(f"{path}: not valid JSON: {exc.msg} at line {exc.lineno}, column {exc.colno}.") from None
+    return metadata_from_dict(data, str(path))

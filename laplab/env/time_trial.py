@@ -1,0 +1,90 @@
+"""``TimeTrialEnv``: one DeepRacer car in a time trial, as a Gymnasium ``Env``."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from laplab.env.metadata import ModelMetadata
+from laplab.env.observations import ObservationBuilder
+from laplab.env.vector import DEFAULT_REWARD, RewardSpec, resolve_metadata, resolve_reward_function
+from laplab.reward.params import ParamsBuilder
+from laplab.sim.simulator import Simulator
+from laplab.sim.state import IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES, TIME_UP, EpisodeParams
+from laplab.track.geometry import Track
+from laplab.track.registry import DEFAULT_TRACK, load_track
+from laplab.vehicle.params import DEEPRACER, VehicleParams
+
+
+class TimeTrialEnv(gym.Env):
+    """One car driving a DeepRacer time trial; registered as ``laplab/TimeTrial-v0``.
+
+    Action space: ``Discrete(k)`` (index into model_metadata.json's discrete ``action_space``) or
+    ``Box(-1, 1, (2,))`` (steering, speed) scaled to its continuous ranges.
+
+    Observation space: the model's sensors; ``STATE`` by default, a float32 vector described in
+    :mod:`laplab.sensors.state_vector`.
+
+    Rewards: ``reward_function(params)`` on a fresh DeepRacer params dict each step (default:
+    DeepRacer's follow-the-centre-line example; ``None``: reward 0).
+
+    Starting state: at rest, origin on the centre line, facing along it, at the start fraction of the
+    lap given by ``options["start_ndist"]`` or else by the round-robin schedule of ``episode``
+    (advancing 0.05 of a lap per episode; ``reset(seed=...)`` restarts the schedule).
+
+    Episode end: terminated on ``lap_complete``, ``off_track``, ``reversed`` or ``immobilized``;
+    truncated at ``episode.max_steps`` (status ``time_up``).
+
+    Info: ``params`` (the dict the reward function saw), ``episode_status``, ``progress`` (%),
+    ``steps``, and ``lap_time`` (s) when the lap completes.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, track: Track | str = DEFAULT_TRACK, reward_function: RewardSpec = DEFAULT_REWARD,
+                 model_metadata: ModelMetadata | dict | str | None = None, vehicle: VehicleParams = DEEPRACER,
+                 episode: EpisodeParams = EpisodeParams()):
+        self.model_metadata = resolve_metadata(model_metadata)
+        self.track = track if isinstance(track, Track) else load_track(track)
+        self.sim = Simulator(self.track, 1, vehicle, episode)
+        self.action_spec = self.model_metadata.action_space
+        self.reward_fn = resolve_reward_function(reward_function, self.action_spec.max_speed)
+        self._params = ParamsBuilder(self.sim)
+        self._observations = ObservationBuilder(self.sim, self.model_metadata)
+        self.observation_space = self._observations.single_space
+        self.action_space = self.action_spec.gym_space()
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self.sim._episodes_done[:] = 0
+        options = options or {}
+        self.sim.reset(ndist=options.get("start_ndist"), direction=options.get("direction"))
+        return self._observe(), self._info()
+
+    def step(self, action):
+        if self.sim.state.status[0] != IN_PROGRESS:
+            raise RuntimeError("step() called on a finished episode; call reset() first")
+        steer, speed = self.action_spec.to_commands(np.asarray(action)[None])
+        self.sim.step(steer, speed)
+        info = self._info()
+        params = self._params.build()[0]
+        info["params"] = params
+        reward = float(self.reward_fn(params)) if self.reward_fn is not None else 0.0
+        status = int(self.sim.state.status[0])
+        truncated = status == TIME_UP
+        terminated = status != IN_PROGRESS and not truncated
+        if status == LAP_COMPLETE:
+            info["lap_time"] = float(self.sim.state.lap_time[0])
+        return self._observe(), reward, terminated, truncated, info
+
+    def _observe(self):
+        obs = self._observations.observe(slice(0, 1))
+        return {k: v[0].copy() for k, v in obs.items()} if isinstance(obs, dict) else obs[0].copy()
+
+    def _info(self) -> dict:
+        st = self.sim.state
+        return {"episode_status": STATUS_NAMES[int(st.status[0])], "progress": float(st.progress[0]),
+                "steps": int(st.steps[0])}

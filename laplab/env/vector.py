@@ -1,0 +1,150 @@
+"""``TimeTrialVectorEnv``: N DeepRacer cars in one batched simulator, as a Gymnasium VectorEnv."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Callable
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode
+
+from laplab.env.metadata import ModelMetadata, load_model_metadata, metadata_from_dict
+from laplab.env.observations import ObservationBuilder
+from laplab.reward.params import ParamsBuilder
+from laplab.sim.simulator import Simulator
+from laplab.sim.state import IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES, TIME_UP, EpisodeParams
+from laplab.track.geometry import Track
+from laplab.track.registry import DEFAULT_TRACK, load_track
+from laplab.vehicle.params import DEEPRACER, VehicleParams
+
+_STATUS_OBJECTS = np.array(STATUS_NAMES, dtype=object)
+EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "reward" / "examples"
+DEFAULT_REWARD = EXAMPLES_DIR / "follow_centerline.py"
+
+RewardSpec = str | os.PathLike | Callable[[dict], float] | None
+
+
+def resolve_reward_function(reward: RewardSpec, max_speed: float = DEEPRACER.max_speed):
+    """A callable ``params -> float`` from a file path, a source string, a callable, or None (no reward)."""
+    if reward is None or callable(reward):
+        return reward
+    from laplab.reward.loader import load_reward_function
+    return load_reward_function(reward, max_speed=max_speed)
+
+
+def resolve_metadata(metadata: ModelMetadata | dict | str | os.PathLike | None) -> ModelMetadata:
+    if metadata is None:
+        return ModelMetadata()
+    if isinstance(metadata, ModelMetadata):
+        return metadata
+    if isinstance(metadata, dict):
+        return metadata_from_dict(metadata, "model_metadata")
+    return load_model_metadata(metadata)
+
+
+class TimeTrialVectorEnv(gym.vector.VectorEnv):
+    """N cars on one track, each in its own DeepRacer time-trial episode.
+
+    Action space: ``Discrete(k)`` per car for a discrete DeepRacer action space (index into the
+    ``action_space`` list of model_metadata.json), or ``Box(-1, 1, (2,))`` (steering, speed) scaled to
+    the continuous ranges.
+
+    Observation space: the sensors of model_metadata.json (``STATE`` by default: see
+    :mod:`laplab.sensors.state_vector`); one sensor gives a Box, several a Dict keyed by sensor name.
+
+    Rewards: the user's ``reward_function(params)`` called once per car and step with a fresh params
+    dict (``None``: no reward function, reward 0; default: DeepRacer's follow-the-centre-line example).
+
+    Starting state: at rest on the centre line, at the round-robin start of
+    :class:`~laplab.sim.state.EpisodeParams` (car i of the batch starts i x 0.05 of a lap further).
+
+    Termination: ``lap_complete``, ``off_track``, ``reversed``, ``immobilized`` terminate; the step cap
+    (``time_up``) truncates.
+
+    Autoreset: ``SAME_STEP``. A finished car is reset within the same ``step`` call; its final
+    observation is in ``info["final_obs"]`` and its final info in ``info["final_info"]`` (masked by
+    ``info["_final_obs"]``). ``info`` always holds per-car arrays ``episode_status`` (str),
+    ``progress`` (%), ``steps``, ``lap_time`` (s, NaN unless the lap completed this step) and, when a
+    reward function runs, ``params`` (the list of params dicts it saw, None for idle cars).
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, num_envs: int = 16, track: Track | str = DEFAULT_TRACK, reward_function: RewardSpec = DEFAULT_REWARD,
+                 model_metadata: ModelMetadata | dict | str | None = None, vehicle: VehicleParams = DEEPRACER,
+                 episode: EpisodeParams = EpisodeParams(), keep_params: bool = True):
+        self.model_metadata = resolve_metadata(model_metadata)
+        self.track = track if isinstance(track, Track) else load_track(track)
+        self.sim = Simulator(self.track, num_envs, vehicle, episode)
+        self.num_envs = int(num_envs)
+        self.action_spec = self.model_metadata.action_space
+        self.reward_fn = resolve_reward_function(reward_function, self.action_spec.max_speed)
+        self.keep_params = keep_params
+        self._params = ParamsBuilder(self.sim)
+        self._observations = ObservationBuilder(self.sim, self.model_metadata)
+        self.single_observation_space = self._observations.single_space
+        self.single_action_space = self.action_spec.gym_space()
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, self.num_envs)
+        self._rewards = np.zeros(self.num_envs, dtype=np.float64)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Reset every car. ``options``: ``start_ndist`` (float or (N,)), ``direction`` (0/1 or (N,))."""
+        super().reset(seed=seed)
+        if seed is not None:
+            self.sim._episodes_done[:] = 0
+        options = options or {}
+        self.sim.reset(ndist=options.get("start_ndist"), direction=options.get("direction"))
+        return self._observe_copy(), self._base_info()
+
+    def step(self, actions):
+        steer, speed = self.action_spec.to_commands(actions)
+        sim = self.sim
+        stepped = sim.step(steer, speed)
+        cars = np.flatnonzero(stepped)
+        rewards = self._rewards
+        rewards[:] = 0.0
+        params_list = None
+        if self.reward_fn is not None and cars.size:
+            params = self._params.build(cars)
+            fn = self.reward_fn
+            rewards[cars] = [fn(p) for p in params]
+            if self.keep_params:
+                params_list = [None] * self.num_envs
+                for car, p in zip(cars.tolist(), params):
+                    params_list[car] = p
+        status = sim.state.status
+        done = stepped & (status != IN_PROGRESS)
+        truncated = done & (status == TIME_UP)
+        terminated = done & ~truncated
+        info = self._base_info(lap_mask=done & (status == LAP_COMPLETE))
+        if params_list is not None:
+            info["params"] = params_list
+        obs = self._observe_copy()
+        if done.any():
+            info["final_obs"] = obs
+            info["_final_obs"] = done.copy()
+            info["final_info"] = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in info.items()
+                                  if k not in ("final_obs", "_final_obs")}
+            info["_final_info"] = done.copy()
+            sim.reset(done)
+            obs = self._observe_copy()
+        return obs, rewards.copy(), terminated, truncated, info
+
+    def _observe_copy(self):
+        obs = self._observations.observe()
+        return {k: v.copy() for k, v in obs.items()} if isinstance(obs, dict) else obs.copy()
+
+    def _base_info(self, lap_mask: np.ndarray | None = None) -> dict:
+        st = self.sim.state
+        lap_time = np.full(self.num_envs, np.nan)
+        if lap_mask is not None:
+            lap_time[lap_mask] = st.lap_time[lap_mask]
+        return {
+            "episode_status": _STATUS_OBJECTS[st.status],
+            "progress": st.progress.copy(),
+            "steps": st.steps.copy(),
+            "lap_time": lap_time,
+        }

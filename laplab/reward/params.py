@@ -1,0 +1,74 @@
+"""The reward function's ``params`` dict, built for a batch of cars from the simulator's arrays.
+
+Every key of DeepRacer's table is present with its meaning and units (reference doc section 2).
+Each call gets a fresh dict. ``waypoints`` is a fresh list per call of shared ``(x, y)`` tuples, so
+a reward function that mutates its list (append, sort, reverse, item assignment) cannot corrupt the
+next call, without copying the coordinates themselves each step.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from laplab.sim.simulator import Simulator
+from laplab.sim.state import OFF_TRACK, CRASHED
+
+PARAMS_KEYS = (
+    "all_wheels_on_track", "x", "y", "heading", "distance_from_center", "is_left_of_center", "progress",
+    "steps", "speed", "steering_angle", "track_width", "track_length", "waypoints", "closest_waypoints",
+    "is_offtrack", "is_crashed", "is_reversed", "projection_distance", "closest_objects",
+    "objects_location", "objects_left_of_center", "objects_speed", "objects_heading", "objects_distance",
+    "objects_distance_from_center", "object_in_camera",
+)
+
+
+class ParamsBuilder:
+    """Builds params dicts for the cars of one :class:`Simulator` (no objects on the track)."""
+
+    def __init__(self, sim: Simulator):
+        self.sim = sim
+        self._waypoints = tuple(tuple(tuple(map(float, p)) for p in t.centerline) for t in sim.tracks)
+        self._road_width = tuple(t.road_width for t in sim.tracks)
+        self._length = sim.track.length
+
+    def build(self, cars: np.ndarray | None = None) -> list[dict]:
+        """One params dict per car index in ``cars`` (all cars when None), from the current state."""
+        st = self.sim.state
+        idx = np.arange(self.sim.num_cars) if cars is None else np.asarray(cars, dtype=np.int64)
+        seg, t, direction = st.segment[idx], st.seg_t[idx], st.direction[idx]
+        width = np.where(direction == 0, _interp(self._road_width[0], seg, t), _interp(self._road_width[1], seg, t))
+        heading = np.degrees(st.yaw[idx])
+        columns = (
+            (st.wheels_on[idx] == 4).tolist(), st.ref_x[idx].tolist(), st.ref_y[idx].tolist(),
+            heading.tolist(), np.abs(st.lateral[idx]).tolist(), (st.lateral[idx] > 0).tolist(),
+            st.progress[idx].tolist(), st.steps[idx].astype(np.float64).tolist(), st.cmd_speed[idx].tolist(),
+            np.degrees(st.cmd_steer[idx]).tolist(), width.tolist(), seg.tolist(),
+            (st.status[idx] == OFF_TRACK).tolist(), (st.status[idx] == CRASHED).tolist(),
+            (direction == 1).tolist(), st.arc[idx].tolist(),
+        )
+        length, waypoints = self._length, self._waypoints
+        return [
+            {
+                "all_wheels_on_track": on, "x": x, "y": y, "heading": hd, "distance_from_center": dfc,
+                "is_left_of_center": left, "progress": prog, "steps": steps, "speed": speed,
+                "steering_angle": steer, "track_width": w, "track_length": length,
+                "waypoints": list(waypoints[rev]), "closest_waypoints": [sg, sg + 1],
+                "is_offtrack": off, "is_crashed": crash, "is_reversed": rev, "projection_distance": proj,
+                "closest_objects": [0, 0], "objects_location": [], "objects_left_of_center": [],
+                "objects_speed": [], "objects_heading": [], "objects_distance": [],
+                "objects_distance_from_center": [], "object_in_camera": False,
+            }
+            for on, x, y, hd, dfc, left, prog, steps, speed, steer, w, sg, off, crash, rev, proj in zip(*columns)
+        ]
+
+
+def _interp(values: np.ndarray, seg: np.ndarray, t: np.ndarray) -> np.ndarray:
+    return values[seg] + t * (values[seg + 1] - values[seg])
+
+
+def heading_deg(yaw_rad: float) -> float:
+    """DeepRacer heading in degrees, in (-180, 180]."""
+    deg = math.degrees(math.atan2(math.sin(yaw_rad), math.cos(yaw_rad)))
+    return 180.0 if deg == -180.0 else deg

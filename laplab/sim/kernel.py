@@ -1,0 +1,122 @@
+"""The fused per-step kernel: dynamics, projection, progress, wheels on track, termination, STATE.
+
+One call advances every car by one 15 Hz decision. Cars whose status is not ``in_progress`` are left
+untouched (the caller resets them). Two compiled loops share one body: a serial one for small batches
+(no thread-pool start-up, the N = 1 latency) and a parallel one for large batches.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from laplab.sensors.state_vector import write_state_vector
+from laplab.sim.state import (IMMOBILIZED, IN_PROGRESS, LAP_COMPLETE, OFF_TRACK, REVERSED, TIME_UP)
+from laplab.track.projection import point_on_track, project_point
+from laplab.vehicle.dynamics import advance_car
+
+PARALLEL_THRESHOLD = 32  # cars; below it the serial loop is faster
+
+
+@nb.njit(cache=True, inline="always")
+def _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing):
+    (wheelbase, steer_rate, max_accel, max_brake, max_lat, max_steer, dt, substeps,
+     ref_offset, half_track, max_speed) = vc
+    max_steps, reversed_steps, immobilized_steps, immobilized_distance = rules
+    geo = fwd if st.direction[i] == 0 else rev
+    centerline, arc_length, left_w, right_w = geo.centerline, geo.arc_length, geo.left_width, geo.right_width
+    length, far_gap = geo.length, geo.far_gap
+
+    x0, y0 = st.x[i], st.y[i]
+    x, y, yaw, speed, steer = advance_car(x0, y0, st.yaw[i], st.speed[i], st.steer[i], cmd_steer[i],
+                                          cmd_speed[i], wheelbase, steer_rate, max_accel, max_brake,
+                                          max_lat, max_steer, dt, substeps)
+    st.x[i], st.y[i], st.yaw[i], st.speed[i], st.steer[i] = x, y, yaw, speed, steer
+    st.cmd_steer[i], st.cmd_speed[i] = cmd_steer[i], cmd_speed[i]
+    c, s = math.cos(yaw), math.sin(yaw)
+    rx, ry = x + ref_offset * c, y + ref_offset * s
+    seg, t, arc, lateral, _ = project_point(rx, ry, centerline, arc_length, far_gap, st.segment[i])
+    st.ref_x[i], st.ref_y[i] = rx, ry
+    st.segment[i], st.seg_t[i], st.lateral[i] = seg, t, lateral
+
+    # Progress: unwrap the arc-length change across the finish line.
+    delta = arc - st.arc[i]
+    if delta > 0.5 * length:
+        delta -= length
+    elif delta < -0.5 * length:
+        delta += length
+    st.arc[i] = arc
+    st.travel[i] += delta
+    progress = min(max(100.0 * st.travel[i] / length, 0.0), 100.0)
+    st.progress[i] = progress
+    st.steps[i] += 1
+
+    wheels = 0
+    for fx, fy in ((wheelbase, half_track), (wheelbase, -half_track), (0.0, half_track), (0.0, -half_track)):
+        wx, wy = x + c * fx - s * fy, y + s * fx + c * fy
+        if point_on_track(wx, wy, centerline, arc_length, left_w, right_w, far_gap, seg):
+            wheels += 1
+    st.wheels_on[i] = wheels
+
+    st.reverse_count[i] = st.reverse_count[i] + 1 if delta < -1e-9 else 0
+    moved = math.hypot(x - x0, y - y0)
+    st.immobile_count[i] = st.immobile_count[i] + 1 if moved <= immobilized_distance else 0
+
+    status = IN_PROGRESS
+    if st.travel[i] >= length:
+        status = LAP_COMPLETE
+        # Sim time at which progress crossed 100 %, interpolated within the last step.
+        frac = (length - (st.travel[i] - delta)) / delta if delta > 0 else 1.0
+        st.lap_time[i] = (st.steps[i] - 1 + min(max(frac, 0.0), 1.0)) * dt
+    elif wheels == 0:
+        status = OFF_TRACK
+    elif st.reverse_count[i] >= reversed_steps:
+        status = REVERSED
+    elif st.immobile_count[i] >= immobilized_steps:
+        status = IMMOBILIZED
+    elif st.steps[i] >= max_steps:
+        status = TIME_UP
+    st.status[i] = status
+
+    if obs.shape[1] > 0:
+        write_state_vector(obs[i], speed, steer, rx, ry, yaw, seg, t, arc, lateral, centerline,
+                           arc_length, left_w, right_w, max_speed, max_steer, look_count, look_spacing)
+
+
+@nb.njit(cache=True)
+def _step_serial(st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing):
+    for i in range(st.x.shape[0]):
+        if st.status[i] == IN_PROGRESS:
+            _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing)
+
+
+@nb.njit(cache=True, parallel=True)
+def _step_parallel(st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing):
+    for i in nb.prange(st.x.shape[0]):
+        if st.status[i] == IN_PROGRESS:
+            _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing)
+
+
+def step_kernel(st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing) -> None:
+    """Advance every in-progress car in ``st`` in place; fills ``obs`` rows (N, D) for them."""
+    loop = _step_parallel if st.x.shape[0] >= PARALLEL_THRESHOLD else _step_serial
+    loop(st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing)
+
+
+@nb.njit(cache=True)
+def observe_kernel(st, fwd, rev, vc, obs, look_count, look_spacing, mask):
+    """Fill ``obs`` rows of the cars in ``mask`` from their current state (after a reset)."""
+    max_steer, max_speed = vc[5], vc[10]
+    for i in range(st.x.shape[0]):
+        if mask[i] and obs.shape[1] > 0:
+            geo = fwd if st.direction[i] == 0 else rev
+            write_state_vector(obs[i], st.speed[i], st.steer[i], st.ref_x[i], st.ref_y[i], st.yaw[i],
+                               st.segment[i], st.seg_t[i], st.arc[i], st.lateral[i], geo.centerline,
+                               geo.arc_length, geo.left_width, geo.right_width, max_speed, max_steer,
+                               look_count, look_spacing)
+
+
+def empty_obs(num_cars: int, size: int) -> np.ndarray:
+    return np.zeros((num_cars, size), dtype=np.float32)

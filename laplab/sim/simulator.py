@@ -1,0 +1,123 @@
+"""A batch of N cars on one track: starts, resets and the 15 Hz step (state kept in arrays)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from laplab.sensors.state_vector import StateSensorParams
+from laplab.sim.kernel import empty_obs, observe_kernel, step_kernel
+from laplab.sim.state import IN_PROGRESS, EpisodeParams, SimState, empty_state
+from laplab.track.geometry import Track
+from laplab.track.projection import TrackArrays, project_points, track_arrays
+from laplab.vehicle.dynamics import dynamics_constants
+from laplab.vehicle.params import DEEPRACER, VehicleParams
+
+
+class Simulator:
+    """N cars driving one track, each in its own episode.
+
+    ``state`` (a :class:`SimState` of (N,) arrays) and ``obs`` ((N, D) float32 STATE observations, D = 0
+    without the STATE sensor) are preallocated and updated in place by :meth:`step` and :meth:`reset`.
+    """
+
+    def __init__(self, track: Track, num_cars: int = 1, vehicle: VehicleParams = DEEPRACER,
+                 episode: EpisodeParams = EpisodeParams(), state_sensor: StateSensorParams | None = StateSensorParams()):
+        if num_cars < 1:
+            raise ValueError(f"num_cars must be >= 1, got {num_cars}")
+        self.num_cars = int(num_cars)
+        self.vehicle, self.episode, self.state_sensor = vehicle, episode, state_sensor
+        self.tracks: tuple[Track, Track] = (track, track.reversed())
+        self.arrays: tuple[TrackArrays, TrackArrays] = tuple(track_arrays(t) for t in self.tracks)
+        self.state: SimState = empty_state(self.num_cars)
+        self.obs = empty_obs(self.num_cars, state_sensor.size if state_sensor else 0)
+        self._look = (state_sensor.lookahead_count, state_sensor.spacing) if state_sensor else (1, 1.0)
+        self._vc = dynamics_constants(vehicle) + (vehicle.reference_offset, 0.5 * vehicle.wheel_track,
+                                                  vehicle.max_speed)
+        self._rules = (int(episode.max_steps), int(episode.reversed_steps), int(episode.immobilized_steps),
+                       float(episode.immobilized_distance))
+        self._episodes_done = np.zeros(self.num_cars, dtype=np.int64)
+        self.state.status[:] = -1  # not started
+
+    @property
+    def track(self) -> Track:
+        return self.tracks[0]
+
+    @property
+    def dt(self) -> float:
+        return self.vehicle.dt
+
+    def track_of(self, car: int) -> Track:
+        """The track in the direction car ``car`` is driving."""
+        return self.tracks[int(self.state.direction[car])]
+
+    def poses(self) -> np.ndarray:
+        """(N, 3) model-origin poses (x, y, yaw)."""
+        return np.stack([self.state.x, self.state.y, self.state.yaw], axis=1)
+
+    def next_start(self, cars: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Start fraction of the lap and direction of the next episode of each car in ``cars``."""
+        ep = self.episode
+        order = self._episodes_done[cars] + (cars if ep.spread_starts else 0)
+        ndist = np.mod(ep.start_ndist + ep.round_robin_advance * order, 1.0)
+        direction = np.full(cars.shape, int(ep.reverse), dtype=np.int64)
+        if ep.alternate_direction:
+            direction ^= (self._episodes_done[cars] % 2).astype(np.int64)
+        return ndist, direction
+
+    def reset(self, mask: np.ndarray | None = None, ndist: np.ndarray | None = None,
+              direction: np.ndarray | None = None) -> None:
+        """Start new episodes for the cars in ``mask`` (all when None).
+
+        Each car is placed with its origin on the centre line at ``ndist`` (fraction of the lap, default
+        from the round-robin schedule), facing along it, at rest.
+        """
+        cars = np.arange(self.num_cars) if mask is None else np.flatnonzero(mask)
+        if cars.size == 0:
+            return
+        auto_ndist, auto_dir = self.next_start(cars)
+        ndist = auto_ndist if ndist is None else np.broadcast_to(np.asarray(ndist, dtype=np.float64), cars.shape)
+        direction = auto_dir if direction is None else np.broadcast_to(np.asarray(direction, np.int64), cars.shape)
+        st = self.state
+        st.direction[cars] = direction
+        for d in (0, 1):
+            sel = cars[direction == d]
+            if sel.size:
+                self._place(sel, self.tracks[d], self.arrays[d], ndist[direction == d])
+        self._episodes_done[cars] += 1
+        st.episode[cars] += 1
+        full = np.zeros(self.num_cars, dtype=np.bool_)
+        full[cars] = True
+        observe_kernel(st, self.arrays[0], self.arrays[1], self._vc, self.obs, *self._look, full)
+
+    def _place(self, cars: np.ndarray, track: Track, arrays: TrackArrays, ndist: np.ndarray) -> None:
+        st = self.state
+        s0 = np.mod(ndist, 1.0) * track.length
+        origin = track.point_at(s0)
+        yaw = track.heading_at(s0)
+        st.x[cars], st.y[cars], st.yaw[cars] = origin[:, 0], origin[:, 1], yaw
+        for field in (st.speed, st.steer, st.cmd_steer, st.cmd_speed, st.travel, st.progress, st.lap_time):
+            field[cars] = 0.0
+        for field in (st.steps, st.reverse_count, st.immobile_count):
+            field[cars] = 0
+        ref = origin + self.vehicle.reference_offset * np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
+        proj = project_points(arrays, ref)
+        seg_len = np.diff(track.arc_length)[proj.segment]
+        st.ref_x[cars], st.ref_y[cars] = ref[:, 0], ref[:, 1]
+        st.arc[cars], st.start_arc[cars] = proj.arc_length, proj.arc_length
+        st.segment[cars], st.lateral[cars] = proj.segment, proj.lateral
+        seg_start = track.arc_length[proj.segment]
+        st.seg_t[cars] = np.clip(np.where(seg_len > 0, (proj.arc_length - seg_start) / np.maximum(seg_len, 1e-12), 0.0), 0, 1)
+        st.wheels_on[cars] = 4
+        st.status[cars] = IN_PROGRESS
+
+    def step(self, cmd_steer: np.ndarray, cmd_speed: np.ndarray) -> np.ndarray:
+        """Advance every in-progress car by one decision (1/15 s).
+
+        ``cmd_steer`` (N,) rad and ``cmd_speed`` (N,) m/s. Returns the (N,) bool mask of the cars that
+        were stepped (those in progress before the call).
+        """
+        stepped = self.state.status == IN_PROGRESS
+        step_kernel(self.state, np.ascontiguousarray(cmd_steer, dtype=np.float64),
+                    np.ascontiguousarray(cmd_speed, dtype=np.float64), self.arrays[0], self.arrays[1],
+                    self._vc, self._rules, self.obs, *self._look)
+        return stepped
