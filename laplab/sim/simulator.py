@@ -110,6 +110,49 @@ class Simulator:
         st.wheels_on[cars] = 4
         st.status[cars] = IN_PROGRESS
 
+    def place(self, cars: np.ndarray, poses: np.ndarray, *, speed=0.0, steer=0.0, cmd_speed=None,
+              cmd_steer=None, steps=None) -> None:
+        """Put cars at given poses (K, 3) within their current episodes and recompute what follows.
+
+        For hand-built states (tests, reward validation): sets pose and speeds, then the reference
+        point's projection, progress since the episode's start (0..100, forward travel), wheels on
+        track, and ``off_track`` status when no wheel is on the track.
+        """
+        from laplab.sim.state import OFF_TRACK
+        from laplab.track.projection import points_on_track
+        from laplab.vehicle.dynamics import reference_point, wheel_centers
+
+        cars = np.asarray(cars, dtype=np.int64).reshape(-1)
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        st = self.state
+        st.x[cars], st.y[cars], st.yaw[cars] = poses[:, 0], poses[:, 1], poses[:, 2]
+        st.speed[cars], st.steer[cars] = speed, steer
+        st.cmd_speed[cars] = speed if cmd_speed is None else cmd_speed
+        st.cmd_steer[cars] = steer if cmd_steer is None else cmd_steer
+        if steps is not None:
+            st.steps[cars] = steps
+        ref = reference_point(poses, self.vehicle)
+        wheels = wheel_centers(poses, self.vehicle)
+        for d in (0, 1):
+            sel = st.direction[cars] == d
+            if not sel.any():
+                continue
+            sub, track, arrays = cars[sel], self.tracks[d], self.arrays[d]
+            proj = project_points(arrays, ref[sel])
+            seg_len = np.maximum(np.diff(track.arc_length)[proj.segment], 1e-12)
+            st.ref_x[sub], st.ref_y[sub] = ref[sel, 0], ref[sel, 1]
+            st.arc[sub], st.segment[sub], st.lateral[sub] = proj.arc_length, proj.segment, proj.lateral
+            st.seg_t[sub] = np.clip((proj.arc_length - track.arc_length[proj.segment]) / seg_len, 0.0, 1.0)
+            st.travel[sub] = np.mod(proj.arc_length - st.start_arc[sub], track.length)
+            st.progress[sub] = 100.0 * st.travel[sub] / track.length
+            hints = np.repeat(proj.segment, 4)
+            on = points_on_track(arrays, wheels[sel].reshape(-1, 2), hints).reshape(-1, 4)
+            st.wheels_on[sub] = on.sum(axis=1)
+        st.status[cars] = np.where(st.wheels_on[cars] == 0, OFF_TRACK, IN_PROGRESS)
+        full = np.zeros(self.num_cars, dtype=np.bool_)
+        full[cars] = True
+        observe_kernel(st, self.arrays[0], self.arrays[1], self._vc, self.obs, *self._look, full)
+
     def step(self, cmd_steer: np.ndarray, cmd_speed: np.ndarray) -> np.ndarray:
         """Advance every in-progress car by one decision (1/15 s).
 

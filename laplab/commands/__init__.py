@@ -1,0 +1,1 @@
+"""Implementations of the ``laplab`` subcommands (each module: ``register(subparsers)``)."""

@@ -1,0 +1,94 @@
+"""Validate a reward function before training: run it over a sweep of realistic states.
+
+The sweep covers the start, middle and end of the lap, both sides of the centre line, on and off the
+track, the car straight and at an angle, both driving directions, and every action of the action
+space (continuous spaces: a 3 x 3 grid of steering and speed). Every call runs under a timeout, so a
+function that never returns fails validation instead of hanging it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from laplab.env.action_space import ActionSpace, default_action_space
+from laplab.reward.errors import RewardFunctionError
+from laplab.reward.loader import RewardFunction, call_with_timeout
+from laplab.reward.params import ParamsBuilder
+from laplab.sim.simulator import Simulator
+from laplab.sim.state import EpisodeParams
+from laplab.track.geometry import Track
+
+LAP_FRACTIONS = (0.005, 0.1, 0.5, 0.75, 0.995)
+LATERAL_FRACTIONS = (-1.4, -0.9, -0.5, -0.15, 0.0, 0.15, 0.5, 0.9, 1.4)  # of the half width; |x| > 1: off track
+HEADING_OFFSETS_DEG = (-25.0, 0.0, 25.0)
+
+
+@dataclass(frozen=True)
+class ValidationReport:
+    """Outcome of :func:`validate_reward_function`; ``error`` is None when every call passed."""
+
+    calls: int
+    minimum: float
+    mean: float
+    maximum: float
+    error: RewardFunctionError | None
+
+    @property
+    def passed(self) -> bool:
+        return self.error is None
+
+
+def sweep_params(track: Track, action_space: ActionSpace | None = None) -> list[dict]:
+    """Params dicts of the validation sweep on ``track`` (both directions, every action)."""
+    action_space = action_space or default_action_space()
+    if action_space.is_discrete:
+        actions = np.arange(len(action_space.actions))
+    else:
+        grid = np.array([-1.0, 0.0, 1.0])
+        actions = np.stack(np.meshgrid(grid, grid), axis=-1).reshape(-1, 2)
+    steer_deg, speed = action_space.to_physical(actions)
+    combos = [(f, lat, hd, d) for d in (0, 1) for f in LAP_FRACTIONS for lat in LATERAL_FRACTIONS
+              for hd in HEADING_OFFSETS_DEG]
+    n_states = len(combos)
+    sim = Simulator(track, n_states * len(steer_deg), episode=EpisodeParams(round_robin_advance=0.0))
+    sim.reset(ndist=0.0, direction=np.repeat([c[3] for c in combos], len(steer_deg)))
+    poses = np.empty((sim.num_cars, 3))
+    row = 0
+    for frac, lat, heading_deg, direction in combos:
+        t = sim.tracks[direction]
+        s = frac * t.length
+        centre = t.point_at(s)
+        yaw = float(t.heading_at(s))
+        seg = min(int(np.searchsorted(t.arc_length, s, side="right")) - 1, t.num_waypoints - 2)
+        half = 0.5 * float(t.width[seg])
+        normal = np.array([-math.sin(yaw), math.cos(yaw)])
+        origin = centre + lat * half * normal - sim.vehicle.reference_offset * np.array([math.cos(yaw), math.sin(yaw)])
+        for _ in range(len(steer_deg)):
+            poses[row] = (origin[0], origin[1], yaw + math.radians(heading_deg))
+            row += 1
+    cars = np.arange(sim.num_cars)
+    sim.state.start_arc[:] = 0.0  # progress counts from waypoint 0 of each direction
+    cmd_speed = np.tile(speed, n_states)
+    sim.place(cars, poses, speed=cmd_speed, steer=np.tile(np.radians(steer_deg), n_states))
+    # steps: as if the car had driven there at its commanded speed from the start
+    sim.state.steps[:] = np.maximum(1, np.round(sim.state.travel / np.maximum(cmd_speed, 0.1) * sim.vehicle.decision_hz))
+    return ParamsBuilder(sim).build()
+
+
+def validate_reward_function(reward_fn: RewardFunction, track: Track, action_space: ActionSpace | None = None,
+                             timeout_s: float = 2.0) -> ValidationReport:
+    """Call ``reward_fn`` on every state of the sweep; stop at the first failure."""
+    values = []
+    error = None
+    for params in sweep_params(track, action_space):
+        try:
+            values.append(call_with_timeout(reward_fn, params, timeout_s))
+        except RewardFunctionError as exc:
+            error = exc
+            break
+    arr = np.array(values) if values else np.zeros(1)
+    return ValidationReport(len(values) + (error is not None), float(arr.min()), float(arr.mean()),
+                            float(arr.max()), error)
