@@ -1,0 +1,198 @@
+"""Policy checkpoints in a model folder, with DeepRacer's `deepracer_checkpoints.json`.
+
+Each checkpoint is one file `model/<iteration>_Step-<steps>.ckpt` (the name rl_coach gives its
+TensorFlow checkpoints in deepracer-for-cloud; `steps` = environment steps so far). Its bytes are
+opaque here: the caller passes bytes, or a callable writing to a path (`lambda p:
+torch.save(state, p)`), so this module needs no torch. The newest `keep_last` checkpoints plus
+the best one are kept; older ones are deleted after each save.
+
+`model/deepracer_checkpoints.json` = `{"best_checkpoint": {"name", "avg_eval_metric",
+"time_stamp"}, "last_checkpoint": {...}}`, rewritten atomically. The best is chosen as the
+simapp does: a checkpoint whose metric is at least (for laptime: at most) the best's so far
+takes over, ties going to the newer one; a checkpoint without a metric becomes best only
+when there is none yet.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from laplab.store.atomic import atomic_write_bytes, atomic_write_json, atomic_write_with, read_json
+from laplab.store.layout import ModelFolder
+from laplab.store.metrics import BEST_MODEL_METRICS
+
+CHECKPOINT_NAME_PATTERN = re.compile(r"([0-9]+)_Step-([0-9]+)\.ckpt")
+
+
+@dataclass(frozen=True)
+class CheckpointParams:
+    """keep_last: newest checkpoints kept besides the best; best_model_metric: 'progress' or
+    'reward' (higher is better) or 'laptime' (lower is better)."""
+
+    keep_last: int = 4
+    best_model_metric: str = "progress"
+
+    def __post_init__(self) -> None:
+        if isinstance(self.keep_last, bool) or not isinstance(self.keep_last, int) or self.keep_last < 1:
+            raise ValueError(f"CheckpointParams.keep_last must be an int >= 1, got {self.keep_last!r}")
+        if self.best_model_metric not in BEST_MODEL_METRICS:
+            raise ValueError(f"CheckpointParams.best_model_metric must be one of {BEST_MODEL_METRICS}, "
+                             f"got {self.best_model_metric!r}")
+
+
+@dataclass(frozen=True)
+class CheckpointRecord:
+    """One entry of deepracer_checkpoints.json; time_stamp in Unix seconds."""
+
+    name: str
+    avg_eval_metric: float | None
+    time_stamp: float
+
+    def as_json(self) -> dict:
+        return {"name": self.name, "avg_eval_metric": self.avg_eval_metric, "time_stamp": self.time_stamp}
+
+
+def checkpoint_name(iteration: int, steps: int) -> str:
+    """`<iteration>_Step-<steps>.ckpt` for non-negative ints."""
+    for label, value in (("iteration", iteration), ("steps", steps)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise ValueError(f"checkpoint {label} must be an int >= 0, got {value!r}")
+    return f"{iteration}_Step-{steps}.ckpt"
+
+
+def _order(name: str) -> tuple[int, int]:
+    match = CHECKPOINT_NAME_PATTERN.fullmatch(name)
+    return int(match.group(1)), int(match.group(2))
+
+
+def _check_metric(metric: float | None) -> float | None:
+    if metric is None:
+        return None
+    value = float(metric)
+    if not math.isfinite(value):
+        raise ValueError(f"checkpoint metric must be finite or None, got {metric!r}")
+    return value
+
+
+class CheckpointStore:
+    """Saves, prunes and resolves the checkpoints of one model folder."""
+
+    def __init__(self, folder: ModelFolder | str | os.PathLike, params: CheckpointParams = CheckpointParams()):
+        self.folder = folder if isinstance(folder, ModelFolder) else ModelFolder(folder)
+        self.params = params
+
+    def names(self) -> list[str]:
+        """Checkpoint file names present, oldest (lowest iteration) first."""
+        if not self.folder.model_dir.is_dir():
+            return []
+        names = [p.name for p in self.folder.model_dir.iterdir() if CHECKPOINT_NAME_PATTERN.fullmatch(p.name)]
+        return sorted(names, key=_order)
+
+    def _records(self) -> tuple[CheckpointRecord | None, CheckpointRecord | None]:
+        path = self.folder.deepracer_checkpoints
+        if not path.exists():
+            return None, None
+        document = read_json(path)
+        records = []
+        for key in ("best_checkpoint", "last_checkpoint"):
+            entry = document.get(key) if isinstance(document, dict) else None
+            if entry is None:
+                records.append(None)
+                continue
+            try:
+                records.append(CheckpointRecord(str(entry["name"]), entry["avg_eval_metric"],
+                                                float(entry["time_stamp"])))
+            except (KeyError, TypeError, ValueError) as error:
+                raise ValueError(f"{str(path)!r}: entry {key!r} must have name, avg_eval_metric and "
+                                 f"time_stamp, got {entry!r}") from error
+        return records[0], records[1]
+
+    def best(self) -> CheckpointRecord | None:
+        return self._records()[0]
+
+    def last(self) -> CheckpointRecord | None:
+        return self._records()[1]
+
+    def _is_better(self, metric: float | None, best: CheckpointRecord | None) -> bool:
+        if best is None or not (self.folder.model_dir / best.name).exists():
+            return True
+        if metric is None:
+            return False
+        if best.avg_eval_metric is None:
+            return True
+        if self.params.best_model_metric == "laptime":
+            return metric <= best.avg_eval_metric
+        return metric >= best.avg_eval_metric
+
+    def _write_records(self, best: CheckpointRecord | None, last: CheckpointRecord | None) -> None:
+        atomic_write_json(self.folder.deepracer_checkpoints, {
+            "best_checkpoint": None if best is None else best.as_json(),
+            "last_checkpoint": None if last is None else last.as_json(),
+        })
+
+    def save(self, payload: bytes | Callable[[Path], object], *, iteration: int, steps: int,
+             metric: float | None = None, time_stamp: float | None = None) -> Path:
+        """Write a checkpoint atomically, update deepracer_checkpoints.json, prune old ones.
+
+        payload: the checkpoint bytes, or a callable writing the checkpoint to the path it is
+        given. metric: the checkpoint's mean evaluation metric (None if not evaluated yet; see
+        `record_metric`). Returns the checkpoint's path.
+        """
+        name = checkpoint_name(iteration, steps)
+        value = _check_metric(metric)
+        path = self.folder.model_dir / name
+        if isinstance(payload, (bytes, bytearray, memoryview)):
+            atomic_write_bytes(path, payload)
+        elif callable(payload):
+            atomic_write_with(path, payload)
+        else:
+            raise TypeError(f"checkpoint payload must be bytes or a callable writing to a path, "
+                            f"got {type(payload).__name__}")
+        record = CheckpointRecord(name, value, time.time() if time_stamp is None else float(time_stamp))
+        best, _ = self._records()
+        self._write_records(record if self._is_better(value, best) else best, record)
+        self._prune()
+        return path
+
+    def record_metric(self, name: str, metric: float, time_stamp: float | None = None) -> None:
+        """Set the evaluation metric of existing checkpoint `name` and reconsider the best."""
+        self.resolve(name)
+        value = _check_metric(metric)
+        best, last = self._records()
+        record = CheckpointRecord(name, value, time.time() if time_stamp is None else float(time_stamp))
+        if last is not None and last.name == name:
+            last = record
+        if (best is not None and best.name == name) or self._is_better(value, best):
+            best = record
+        self._write_records(best, last)
+        self._prune()
+
+    def _prune(self) -> None:
+        names = self.names()
+        best = self.best()
+        keep = set(names[-self.params.keep_last:]) | ({best.name} if best is not None else set())
+        for name in names:
+            if name not in keep:
+                (self.folder.model_dir / name).unlink(missing_ok=True)
+
+    def resolve(self, which: str = "best") -> Path:
+        """Path of the 'best' or 'last' checkpoint, or of the checkpoint named `which`."""
+        if which in ("best", "last"):
+            record = self.best() if which == "best" else self.last()
+            if record is None:
+                raise FileNotFoundError(f"model {self.folder.name!r} has no {which} checkpoint yet "
+                                        f"({str(self.folder.deepracer_checkpoints)!r} is missing or empty)")
+            name = record.name
+        else:
+            name = which
+        path = self.folder.model_dir / name
+        if CHECKPOINT_NAME_PATTERN.fullmatch(name) is None or not path.is_file():
+            raise FileNotFoundError(f"checkpoint {name!r} not found in {str(self.folder.model_dir)!r}; "
+                                    f"available: {self.names()} (or 'best', 'last')")
+        return path
