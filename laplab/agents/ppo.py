@@ -1,0 +1,259 @@
+"""Clipped PPO as DeepRacer trains it (rl_coach ``ClippedPPOAgent``, reference doc section 6).
+
+One training iteration takes the experience of ``num_episodes_between_training`` episodes,
+computes GAE advantages (lambda 0.95) and value targets, standardises the advantages, then makes
+``num_epochs`` shuffled passes in minibatches of ``batch_size`` (the last one may be smaller),
+minimising ``clipped surrogate (eps 0.2) + value loss (huber / MSE) - beta_entropy * entropy``
+with Adam (eps 1e-5). Policy and value networks are separate, as in DeepRacer; no gradient
+clipping.
+
+Exploration while acting: ``categorical`` samples the policy; ``e-greedy`` takes a uniform
+random action with probability epsilon (decaying linearly from 1 to ``e_greedy_value`` over
+``epsilon_steps`` env steps) and otherwise the greedy action (discrete) or a policy sample
+(continuous), as rl_coach's EGreedy does.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict
+from typing import Any, Mapping, NamedTuple
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from laplab.agents.hyperparameters import Hyperparameters
+from laplab.agents.losses import (clipped_surrogate_loss, compute_gae, entropy_bonus,
+                                  policy_change_stats, value_loss)
+from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, ActorCritic, PolicyStep,
+                                    action_spec_from, observation_to_tensor)
+
+CLIP_EPSILON = 0.2
+GAE_LAMBDA = 0.95
+ADAM_EPSILON = 1e-5
+ADVANTAGE_EPSILON = 1e-8
+
+
+class Rollout(NamedTuple):
+    """The experience of one iteration, time-major: T steps of N environments (numpy arrays).
+
+    - ``observations``: (T, N, *obs_shape), or a dict sensor -> (T, N, *sensor_shape).
+    - ``actions``: (T, N) int64 indices, or (T, N, A) float32 as returned in ``PolicyStep.action``
+      (unclipped samples).
+    - ``log_probs``: (T, N) log pi(action | obs) of the acting policy.
+    - ``values``: (T, N) V(obs) of the acting value network.
+    - ``rewards``: (T, N) reward for the step.
+    - ``terminated``: (T, N) bool, the episode ended with this step (off track, lap complete, ...);
+      no bootstrapping, as DeepRacer treats every episode end.
+    - ``truncated``: optional (T, N) bool, the episode was cut with this step (a step limit): its
+      future is bootstrapped with ``bootstrap_values``.
+    - ``bootstrap_values``: optional (T, N) V(final obs) where ``truncated`` (ignored elsewhere).
+    - ``last_values``: optional (N,) V(obs after step T-1) for episodes still running at the end;
+      None treats them as ended (train only on complete episodes, or mark the tail invalid).
+    - ``valid``: optional (T, N) bool, the steps that take part in the update (None = all).
+    """
+
+    observations: Any
+    actions: np.ndarray
+    log_probs: np.ndarray
+    values: np.ndarray
+    rewards: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray | None = None
+    bootstrap_values: np.ndarray | None = None
+    last_values: np.ndarray | None = None
+    valid: np.ndarray | None = None
+
+
+def fold_truncation(rewards: np.ndarray, terminated: np.ndarray, truncated: np.ndarray | None,
+                    bootstrap_values: np.ndarray | None, gamma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rewards and episode ends for GAE, all (T, N): a truncated (not terminated) step gets
+    ``gamma * bootstrap_value`` added to its reward, and every terminated or truncated step ends
+    its episode. -> (rewards float32, dones bool)."""
+    rewards = np.asarray(rewards, dtype=np.float32)
+    dones = np.asarray(terminated, dtype=bool)
+    if truncated is None:
+        return rewards, dones
+    truncated = np.asarray(truncated, dtype=bool)
+    if bootstrap_values is None:
+        raise ValueError("A rollout with truncated steps needs bootstrap_values (V of their final obs).")
+    bootstrap = np.where(truncated & ~dones, np.asarray(bootstrap_values, np.float32), 0.0)
+    return (rewards + gamma * bootstrap).astype(np.float32), dones | truncated
+
+
+def _flatten_time(observations: Any, rows: np.ndarray) -> Any:
+    """(T, N, ...) -> (M, ...) for the selected flat ``rows`` (M,), dicts sensor-wise."""
+    if isinstance(observations, Mapping):
+        return {key: _flatten_time(value, rows) for key, value in observations.items()}
+    array = np.asarray(observations)
+    return array.reshape(-1, *array.shape[2:])[rows]
+
+
+def _take(observations: Any, index: np.ndarray) -> Any:
+    if isinstance(observations, Mapping):
+        return {key: value[index] for key, value in observations.items()}
+    return observations[index]
+
+
+def limit_torch_threads(num_threads: int | None = None) -> None:
+    """Set torch's intra-op threads to ``num_threads``, or (None) cap them at the CPUs this
+    process may use, so learners in worker processes do not oversubscribe the machine."""
+    available = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    if num_threads is not None:
+        torch.set_num_threads(max(1, int(num_threads)))
+    elif torch.get_num_threads() > available:
+        torch.set_num_threads(available)
+
+
+class PPOLearner:
+    """DeepRacer's clipped PPO for a gymnasium observation space and a discrete or continuous
+    action space (see ``action_spec_from``; continuous actions live in [-1, 1]^A).
+
+    ``seed`` seeds torch's global RNG (network init, policy sampling) and this learner's numpy RNG
+    (e-greedy draws, minibatch shuffling).
+    """
+
+    def __init__(self, observation_space: gym.spaces.Space, action_space_spec: Any,
+                 hyperparameters: Hyperparameters = Hyperparameters(),
+                 network_name: str = DEFAULT_NETWORK, device: str = "cpu",
+                 seed: int | None = None, num_threads: int | None = None):
+        limit_torch_threads(num_threads)
+        if seed is not None:
+            torch.manual_seed(seed)
+        self.hyperparameters = hyperparameters
+        self.network_name = network_name
+        self.action_spec: ActionSpec = action_spec_from(action_space_spec)
+        self.device = torch.device(device)
+        self.model = ActorCritic(observation_space, self.action_spec, network_name).to(self.device)
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=hyperparameters.lr, eps=ADAM_EPSILON)
+        self.rng = np.random.default_rng(seed)
+        self.env_steps = 0  # environment steps acted with exploration (drives epsilon)
+        self.iterations = 0
+
+    @property
+    def epsilon(self) -> float:
+        """The current e-greedy epsilon (only used when ``exploration_type == "e-greedy"``)."""
+        return self.hyperparameters.epsilon_at(self.env_steps)
+
+    @torch.no_grad()
+    def act(self, observations: Any, deterministic: bool = False) -> PolicyStep:
+        """Actions for a batch of B observations (numpy, leading axis B) -> ``PolicyStep`` of
+        numpy arrays. Exploring calls advance the epsilon schedule by B steps."""
+        distribution, value = self.model(observation_to_tensor(observations, self.device))
+        greedy = distribution.probs.argmax(-1) if self.action_spec.discrete else distribution.mean
+        if deterministic:
+            action = greedy
+        else:
+            action = distribution.sample()
+            if self.hyperparameters.exploration_type == "e-greedy":
+                action = self._epsilon_greedy(action, greedy)
+            self.env_steps += int(value.shape[0])
+        env_action = action if self.action_spec.discrete else action.clamp(-1.0, 1.0)
+        log_prob = distribution.log_prob(action)
+        return PolicyStep(*(tensor.cpu().numpy() for tensor in (action, env_action, log_prob, value)))
+
+    def _epsilon_greedy(self, sampled: torch.Tensor, greedy: torch.Tensor) -> torch.Tensor:
+        """With probability epsilon a uniform random action, else greedy (discrete) or the
+        policy sample (continuous)."""
+        batch = sampled.shape[0]
+        explore = torch.as_tensor(self.rng.random(batch) < self.epsilon, device=self.device)
+        if self.action_spec.discrete:
+            random = torch.as_tensor(self.rng.integers(0, self.action_spec.size, batch), device=self.device)
+            return torch.where(explore, random, greedy)
+        random = torch.as_tensor(self.rng.uniform(-1.0, 1.0, (batch, self.action_spec.size)),
+                                 dtype=sampled.dtype, device=self.device)
+        return torch.where(explore[:, None], random, sampled)
+
+    @torch.no_grad()
+    def values(self, observations: Any) -> np.ndarray:
+        """V(obs) (B,) for a batch of observations, e.g. ``Rollout.last_values``."""
+        return self.model.value(observation_to_tensor(observations, self.device)).cpu().numpy()
+
+    def update(self, rollout: Rollout) -> dict[str, float]:
+        """One DeepRacer training iteration on ``rollout``. Returns means over all minibatches:
+        policy_loss, value_loss, entropy, approx_kl, clip_fraction; plus explained_variance,
+        num_steps, num_minibatches, epsilon."""
+        hp = self.hyperparameters
+        rewards, dones = fold_truncation(rollout.rewards, rollout.terminated, rollout.truncated,
+                                         rollout.bootstrap_values, hp.discount_factor)
+        values = np.asarray(rollout.values, dtype=np.float32)
+        steps, envs = values.shape
+        for name in ("log_probs", "rewards", "terminated", "truncated", "valid"):
+            field = getattr(rollout, name)
+            if field is not None and np.shape(field) != (steps, envs):
+                raise ValueError(f"Rollout.{name} has shape {np.shape(field)}; expected (T, N) = {(steps, envs)} "
+                                 "like Rollout.values.")
+        last = np.zeros(envs, np.float32) if rollout.last_values is None else rollout.last_values
+        advantages, returns = compute_gae(torch.as_tensor(rewards), torch.as_tensor(values),
+                                          torch.as_tensor(dones), torch.as_tensor(last, dtype=torch.float32),
+                                          hp.discount_factor, GAE_LAMBDA)
+        valid = np.ones((steps, envs), bool) if rollout.valid is None else np.asarray(rollout.valid, bool)
+        rows = np.flatnonzero(valid.reshape(-1))
+        if rows.size == 0:
+            raise ValueError("PPO update got a rollout with no valid steps.")
+        advantages = advantages.reshape(-1)[torch.as_tensor(rows)]
+        advantages = (advantages - advantages.mean()) / (advantages.std(unbiased=False) + ADVANTAGE_EPSILON)
+        returns = returns.reshape(-1)[torch.as_tensor(rows)]
+        observations = _flatten_time(rollout.observations, rows)
+        actions = np.asarray(rollout.actions)
+        actions = actions.reshape(steps * envs, *actions.shape[2:])[rows]
+        old_log_probs = torch.as_tensor(np.asarray(rollout.log_probs, np.float32).reshape(-1)[rows])
+        old_values = values.reshape(-1)[rows]
+
+        totals = np.zeros(5)
+        minibatches = 0
+        self.model.train()
+        for _ in range(hp.num_epochs):
+            order = self.rng.permutation(rows.size)
+            for start in range(0, rows.size, hp.batch_size):
+                index = order[start:start + hp.batch_size]
+                totals += self._minibatch_step(_take(observations, index), actions[index],
+                                               old_log_probs[index], advantages[index], returns[index])
+                minibatches += 1
+        self.iterations += 1
+        means = totals / minibatches
+        return_variance = float(np.var(returns.numpy()))
+        explained = 1.0 - float(np.var(returns.numpy() - old_values)) / return_variance if return_variance > 0 else 0.0
+        return {"policy_loss": float(means[0]), "value_loss": float(means[1]), "entropy": float(means[2]),
+                "approx_kl": float(means[3]), "clip_fraction": float(means[4]), "explained_variance": explained,
+                "num_steps": int(rows.size), "num_minibatches": minibatches, "epsilon": self.epsilon}
+
+    def _minibatch_step(self, observations: Any, actions: np.ndarray, old_log_probs: torch.Tensor,
+                        advantages: torch.Tensor, returns: torch.Tensor) -> np.ndarray:
+        device = self.device
+        obs = observation_to_tensor(observations, device)
+        action_tensor = torch.as_tensor(actions, device=device)
+        action_tensor = action_tensor.long() if self.action_spec.discrete else action_tensor.float()
+        old_log_probs, advantages, returns = (x.to(device) for x in (old_log_probs, advantages, returns))
+        log_probs, entropy, predicted = self.model.evaluate(obs, action_tensor)
+        policy_loss = clipped_surrogate_loss(log_probs, old_log_probs, advantages, CLIP_EPSILON)
+        critic_loss = value_loss(predicted, returns, self.hyperparameters.loss_type)
+        loss = policy_loss + critic_loss + entropy_bonus(entropy, self.hyperparameters.beta_entropy)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        approx_kl, clip_fraction = policy_change_stats(log_probs, old_log_probs, CLIP_EPSILON)
+        return np.array([policy_loss.item(), critic_loss.item(), entropy.mean().item(), approx_kl, clip_fraction])
+
+    def state_dict(self) -> dict[str, Any]:
+        """Everything needed to resume: weights, optimizer, schedules and the full config."""
+        return {"algorithm": "clipped_ppo", "model": self.model.state_dict(),
+                "optimizer": self.optimizer.state_dict(), "env_steps": self.env_steps,
+                "iterations": self.iterations, "hyperparameters": self.hyperparameters.to_dict(),
+                "network_name": self.network_name, "action_spec": asdict(self.action_spec)}
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Restore from ``state_dict()``; the network and action space must match this learner."""
+        saved = (state.get("network_name"), state.get("action_spec"))
+        if state.get("algorithm") != "clipped_ppo" or saved != (self.network_name, asdict(self.action_spec)):
+            raise ValueError(
+                f"Checkpoint is a {state.get('algorithm')} model for network {saved[0]!r} with actions "
+                f"{saved[1]}, but this clipped_ppo learner "
+                f"uses {self.network_name!r} with {asdict(self.action_spec)}; a model's action space "
+                "and network cannot change."
+            )
+        self.model.load_state_dict(state["model"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.env_steps = int(state["env_steps"])
+        self.iterations = int(state["iterations"])

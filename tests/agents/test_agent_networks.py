@@ -1,0 +1,150 @@
+"""DeepRacer's named networks: layer schemes, output shapes, multi-sensor inputs, policy heads."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from laplab.agents.networks import (ActionSpec, ActorCritic, CameraEmbedder, SquashedGaussianActor, TwinQ,
+                                    action_spec_from, build_embedder, squashed_gaussian_log_prob)
+
+CAMERA = gym.spaces.Box(0, 255, (1, 120, 160), np.uint8)
+STEREO = gym.spaces.Box(0, 255, (2, 120, 160), np.uint8)
+
+# conv (filters, kernel, stride) and dense sizes from the reference doc, and the flattened conv
+# output for a 120 x 160 image (valid convolutions: out = (in - kernel) // stride + 1):
+#   SHALLOW: 120x160 -> 29x39 -> 13x18 -> 11x16, x64 = 11264
+#   DEEP_CONVOLUTIONAL_NETWORK: -> 58x78 -> 56x76 -> 27x37 -> 25x35, x64 = 56000
+#   DEEP: -> 29x39 -> 13x18 -> 5x8 -> 3x6, x64 = 1152
+NETWORKS = {
+    "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW": ([(32, 8, 4), (64, 4, 2), (64, 3, 1)], 11264, [512], 512),
+    "DEEP_CONVOLUTIONAL_NETWORK": ([(32, 5, 2), (32, 3, 1), (64, 3, 2), (64, 3, 1)], 56000, [64, 512], 512),
+    "DEEP_CONVOLUTIONAL_NETWORK_DEEP": ([(32, 8, 4), (32, 4, 2), (64, 4, 2), (64, 3, 1)], 1152,
+                                        [512, 512, 256, 128], 128),
+}
+
+
+def _dense_sizes(module):
+    return [m.out_features for m in module.modules() if isinstance(m, nn.Linear)]
+
+
+@pytest.mark.parametrize("name", NETWORKS)
+@pytest.mark.parametrize("space", [CAMERA, STEREO], ids=["mono", "stereo"])
+def test_named_network_layers_and_output(name, space):
+    convs, flat, dense, out = NETWORKS[name]
+    embedder = build_embedder(space, name)
+    camera = embedder.sensors["observation"]
+    assert isinstance(camera, CameraEmbedder)
+    layers = [m for m in camera.modules() if isinstance(m, nn.Conv2d)]
+    assert [(m.out_channels, m.kernel_size[0], m.stride[0]) for m in layers] == convs
+    assert layers[0].in_channels == space.shape[0]
+    assert all(isinstance(m, nn.ReLU) for m in camera.convolutions if not isinstance(m, (nn.Conv2d, nn.Flatten)))
+    images = torch.randint(0, 256, (3, *space.shape), dtype=torch.uint8)
+    assert camera.convolutions(images.float()).shape == (3, flat)
+    assert _dense_sizes(embedder) == dense
+    assert embedder(images).shape == (3, out) and embedder.output_dim == out
+
+
+def test_images_are_scaled_to_unit_range():
+    embedder = build_embedder(CAMERA)
+    first = embedder.sensors["observation"].convolutions[0]
+    images = torch.full((1, 1, 120, 160), 255, dtype=torch.uint8)
+    expected = nn.functional.conv2d(torch.ones(1, 1, 120, 160), first.weight, first.bias, stride=4)
+    torch.testing.assert_close(first(images.float() * embedder.sensors["observation"].scale), expected)
+
+
+def test_multi_sensor_dict_concatenates_embeddings():
+    space = gym.spaces.Dict({
+        "STEREO_CAMERAS": STEREO,
+        "LIDAR": gym.spaces.Box(0.15, 1.0, (64,), np.float32),
+    })
+    embedder = build_embedder(space)
+    # lidar: dense 256, 256; the middleware's 512 takes camera 11264 + lidar 256
+    assert _dense_sizes(embedder.sensors["LIDAR"]) == [256, 256]
+    assert embedder.middleware[0].in_features == 11264 + 256
+    obs = {"STEREO_CAMERAS": torch.zeros(2, 2, 120, 160, dtype=torch.uint8), "LIDAR": torch.rand(2, 64)}
+    assert embedder(obs).shape == (2, 512)
+
+
+def test_state_vector_mlp_uses_tanh():
+    embedder = build_embedder(gym.spaces.Box(-1, 1, (6,), np.float32), "MLP")
+    assert _dense_sizes(embedder) == [256, 256]
+    assert any(isinstance(m, nn.Tanh) for m in embedder.modules())
+    assert embedder(torch.rand(5, 6)).shape == (5, 256)
+    sector = build_embedder(gym.spaces.Dict({"DISCRETIZED_SECTOR_LIDAR": gym.spaces.Box(0, 1, (8, 8)),
+                                             "STATE": gym.spaces.Box(-1, 1, (3,))}), "MLP")
+    assert sector({"DISCRETIZED_SECTOR_LIDAR": torch.rand(4, 8, 8), "STATE": torch.rand(4, 3)}).shape == (4, 512)
+
+
+@pytest.mark.parametrize("space, network, message", [
+    (gym.spaces.Dict({"FRONT_CAMERA": CAMERA}), "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW", "Unknown sensor"),
+    (gym.spaces.Dict({"FRONT_FACING_CAMERA": CAMERA, "LEFT_CAMERA": CAMERA}),
+     "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW", "at most one camera"),
+    (CAMERA, "MLP", "no convolutions"),
+    (CAMERA, "RESNET", "Unknown neural_network"),
+    (gym.spaces.Box(0, 255, (120, 160, 1), np.uint8), "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW", "channels-first"),
+    (gym.spaces.Box(0, 255, (1, 12, 16), np.uint8), "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW", "too small"),
+])
+def test_bad_spaces_give_clear_errors(space, network, message):
+    with pytest.raises(ValueError, match=message):
+        build_embedder(space, network)
+
+
+def test_action_spec_from_forms():
+    assert action_spec_from(5) == ActionSpec(True, 5)
+    assert action_spec_from(gym.spaces.Discrete(3)) == ActionSpec(True, 3)
+    assert action_spec_from(gym.spaces.Box(-1, 1, (2,))) == ActionSpec(False, 2)
+    metadata = {"action_space": [{"steering_angle": -30, "speed": 0.6}, {"steering_angle": 0, "speed": 1.2}],
+                "action_space_type": "discrete"}
+    assert action_spec_from(metadata) == ActionSpec(True, 2)
+    continuous = {"action_space": {"steering_angle": {"low": -30, "high": 30}, "speed": {"low": 0.5, "high": 4}},
+                  "action_space_type": "continuous"}
+    assert action_spec_from(continuous) == ActionSpec(False, 2)
+    with pytest.raises(ValueError, match="action space"):
+        action_spec_from("steer")
+
+
+def test_actor_critic_discrete_on_camera():
+    model = ActorCritic(CAMERA, 5)
+    obs = torch.randint(0, 256, (4, 1, 120, 160), dtype=torch.uint8)
+    step = model.act(obs)
+    assert step.action.shape == (4,) and step.value.shape == (4,) and step.log_prob.shape == (4,)
+    log_prob, entropy, value = model.evaluate(obs, step.action)
+    torch.testing.assert_close(log_prob, step.log_prob)
+    # the starting policy is near uniform over 5 actions
+    assert torch.allclose(entropy, torch.full((4,), np.log(5.0)), atol=1e-2)
+    assert model.value_trunk is not None  # DeepRacer: separate policy and value networks
+
+
+def test_actor_critic_continuous_clips_only_env_action():
+    torch.manual_seed(0)
+    model = ActorCritic(gym.spaces.Box(-1, 1, (3,), np.float32), ActionSpec(False, 2), "MLP")
+    obs = torch.zeros(2000, 3)
+    step = model.act(obs)
+    assert step.action.shape == (2000, 2)
+    assert step.action.abs().max() > 1.0  # std 1 at the start: raw samples leave [-1, 1]
+    assert step.env_action.abs().max() <= 1.0
+    torch.testing.assert_close(step.env_action, step.action.clamp(-1, 1))
+    log_prob, _, _ = model.evaluate(obs, step.action)
+    torch.testing.assert_close(log_prob, step.log_prob)
+    deterministic = model.act(obs[:3], deterministic=True)
+    torch.testing.assert_close(deterministic.action, model.policy_head(model.policy_trunk(obs[:3])))
+
+
+def test_sac_networks_shapes_and_squash():
+    space = gym.spaces.Box(0, 255, (2, 120, 160), np.uint8)
+    actor, critic = SquashedGaussianActor(space, 2), TwinQ(space, 2)
+    obs = torch.randint(0, 256, (3, 2, 120, 160), dtype=torch.uint8)
+    actions, log_probs = actor(obs)
+    assert actions.shape == (3, 2) and log_probs.shape == (3,) and actions.abs().max() < 1.0
+    q1, q2 = critic(obs, actions)
+    assert q1.shape == q2.shape == (3,)
+
+
+def test_squashed_log_prob_matches_change_of_variables():
+    # log p(tanh u) = log N(u) - log(1 - tanh(u)^2), summed over dims
+    u = torch.tensor([[0.3, -1.2]])
+    normal = torch.distributions.Normal(torch.tensor([[0.1, 0.0]]), torch.tensor([[0.5, 2.0]]))
+    expected = (normal.log_prob(u) - torch.log(1 - torch.tanh(u) ** 2)).sum(-1)
+    torch.testing.assert_close(squashed_gaussian_log_prob(u, normal), expected)
