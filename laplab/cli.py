@@ -15,6 +15,7 @@ COMMAND_MODULES = (
     "laplab.commands.run",
     "laplab.commands.tracks",
     "laplab.commands.reward",
+    "laplab.commands.train",
 )
 
 
@@ -47,8 +48,17 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     from laplab.env.action_space import ActionSpaceError
     from laplab.env.metadata import MetadataError
     from laplab.reward.errors import RewardFunctionError
+    from laplab.agents.hyperparameters import HyperparameterError
+    from laplab.store.layout import ModelNameError
     from laplab.track.geometry import TrackError
-    return (UserError, TrackError, MetadataError, ActionSpaceError, RewardFunctionError, FileNotFoundError)
+    from laplab.train.config import ConfigError
+    errors = (UserError, TrackError, MetadataError, ActionSpaceError, RewardFunctionError, FileNotFoundError,
+              HyperparameterError, ModelNameError, ConfigError)
+    try:
+        from laplab.train.jobs import JobError
+    except ImportError:  # training extras (torch) not installed
+        return errors
+    return errors + (JobError,)
 
 
 def main(argv: list[str] | None = None) -> int:

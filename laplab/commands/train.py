@@ -1,0 +1,127 @@
+"""``laplab train`` and ``laplab clone``: training jobs with a live progress display."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import threading
+from pathlib import Path
+
+from rich.console import Console
+
+
+def _add_job_options(parser: argparse.ArgumentParser, defaults: bool) -> None:
+    none = None
+    parser.add_argument("--track", default=none, help="track name or .npy path (default: classic_2018)")
+    parser.add_argument("--reward", default=none, help="reward_function.py (default: follow the centre line)")
+    parser.add_argument("--model-metadata", default=none, help="model_metadata.json (action space, sensors, network)")
+    parser.add_argument("--hyperparameters", default=none, help="hyperparameters.json")
+    parser.add_argument("--max-time", default="20m" if defaults else none, help="stop after this long (e.g. 90s, 20m, 1h)")
+    parser.add_argument("--max-episodes", type=int, default=none, help="stop after this many training episodes")
+    parser.add_argument("--seed", type=int, default=0 if defaults else none, help="random seed")
+
+
+def register(subparsers) -> None:
+    train = subparsers.add_parser("train", help="train a model (PPO or SAC) with a reward function")
+    train.add_argument("--name", help="name of the new model (letters, digits, hyphens)")
+    train.add_argument("--resume", metavar="NAME", help="continue an interrupted job from its last checkpoint")
+    _add_job_options(train, defaults=True)
+    train.add_argument("--quiet", action="store_true", help="print only the summary")
+    train.set_defaults(func=run_train)
+    clone = subparsers.add_parser("clone", help="start a new model from another model's weights")
+    clone.add_argument("source", help="the model to start from (its best checkpoint)")
+    clone.add_argument("name", help="name of the new model")
+    _add_job_options(clone, defaults=False)
+    clone.add_argument("--quiet", action="store_true")
+    clone.set_defaults(func=run_clone)
+
+
+def _read_json(path: str | None, what: str) -> dict | None:
+    from laplab.cli import UserError
+    if path is None:
+        return None
+    file = Path(path)
+    if not file.is_file():
+        raise UserError(f"{path}: no such {what} file.")
+    try:
+        return json.loads(file.read_text())
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{path}: not valid JSON: {exc.msg} at line {exc.lineno}, column {exc.colno}.") from None
+
+
+def _overrides(args: argparse.Namespace) -> dict:
+    from laplab.agents.hyperparameters import load_hyperparameters
+    from laplab.env.metadata import load_model_metadata
+    from laplab.train.config import parse_duration
+    out = {"track": args.track, "reward_path": str(Path(args.reward).resolve()) if args.reward else None,
+           "max_episodes": args.max_episodes, "seed": args.seed,
+           "max_time_s": parse_duration(args.max_time) if args.max_time else None}
+    if args.model_metadata:
+        out["model_metadata"] = load_model_metadata(args.model_metadata).to_dict()
+    if args.hyperparameters:
+        out["hyperparameters"] = load_hyperparameters(args.hyperparameters).to_dict()
+    return out
+
+
+class _StopFlag:
+    """SIGINT / SIGTERM set a flag the trainer polls; a second Ctrl-C interrupts at once."""
+
+    def __init__(self):
+        self.event = threading.Event()
+        self._previous = {}
+
+    def __enter__(self):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame):
+        if self.event.is_set() and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.event.set()
+
+    def __exit__(self, *exc):
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+def _run_trainer(trainer, console: Console, quiet: bool) -> int:
+    from laplab.train.progress import ProgressPrinter
+    printer = ProgressPrinter(console, trainer, quiet)
+    with _StopFlag() as stop:
+        result = trainer.run(callbacks=(printer,), should_stop=stop.event.is_set)
+    printer.summary(result)
+    return 1 if result.error else 0
+
+
+def run_train(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from laplab.cli import UserError
+    from laplab.train.config import TrainConfig
+    from laplab.train.jobs import create_training, resume_training
+
+    console = Console(highlight=False, soft_wrap=True)
+    if args.resume:
+        if args.name:
+            raise UserError("give either --name (a new model) or --resume NAME, not both")
+        max_time = _overrides(args)["max_time_s"]
+        trainer = resume_training(args.resume, max_time)
+        console.print(f"resuming {args.resume} at iteration {trainer.iteration} ({trainer.episodes} episodes)")
+    else:
+        if not args.name:
+            raise UserError("name the new model with --name NAME (or continue one with --resume NAME)")
+        values = {k: v for k, v in _overrides(args).items() if v is not None}
+        trainer = create_training(args.name, replace(TrainConfig(), **values))
+    return _run_trainer(trainer, console, args.quiet)
+
+
+def run_clone(args: argparse.Namespace) -> int:
+    from laplab.train.jobs import clone_config, create_training
+
+    console = Console(highlight=False, soft_wrap=True)
+    config, weights = clone_config(args.source, _overrides(args))
+    trainer = create_training(args.name, config, init_weights=weights)
+    console.print(f"cloned {args.source} -> {args.name}")
+    return _run_trainer(trainer, console, args.quiet)

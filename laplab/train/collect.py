@@ -1,0 +1,154 @@
+"""Collecting whole episodes from a batch of cars: one episode per car, as DeepRacer's iteration does.
+
+E cars start at E consecutive round-robin starts and each drives exactly one episode; a car whose
+episode ended waits (it is masked out of the rollout) until the last one ends. The result holds the
+time-major rollout for the learner, per-episode results for metrics, and simtrace rows.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from laplab.env.action_space import ActionSpace
+from laplab.env.observations import ObservationBuilder
+from laplab.reward.params import ParamsBuilder
+from laplab.sim.simulator import Simulator
+from laplab.sim.state import IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES, TIME_UP
+
+
+@dataclass
+class EpisodeBatch:
+    """E complete episodes.
+
+    Time-major arrays (T, E): ``actions`` (T, E) or (T, E, 2), ``log_probs``, ``values``,
+    ``rewards``, ``terminated``, ``truncated``, ``valid`` (the car was driving at that step);
+    ``observations`` (T, E, ...) or a dict of them; ``bootstrap_values`` (T, E) V(final obs) where
+    truncated. Per episode (E,): ``total_reward``, ``progress`` (%), ``status`` (codes),
+    ``steps``, ``lap_time`` (s, NaN unless completed), ``duration`` (sim s). ``trace``: simtrace
+    columns of every step (episode numbers are 0-based within the batch).
+    """
+
+    observations: Any
+    actions: np.ndarray
+    log_probs: np.ndarray
+    values: np.ndarray
+    rewards: np.ndarray
+    terminated: np.ndarray
+    truncated: np.ndarray
+    valid: np.ndarray
+    bootstrap_values: np.ndarray
+    total_reward: np.ndarray
+    progress: np.ndarray
+    status: np.ndarray
+    steps: np.ndarray
+    lap_time: np.ndarray
+    duration: np.ndarray
+    trace: dict[str, np.ndarray]
+    wall_seconds: float
+
+    @property
+    def env_steps(self) -> int:
+        return int(self.valid.sum())
+
+    @property
+    def completed(self) -> np.ndarray:
+        return self.status == LAP_COMPLETE
+
+    def status_names(self) -> list[str]:
+        return [STATUS_NAMES[s] for s in self.status]
+
+
+PolicyFn = Callable[[Any], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+
+
+def _stack(frames: list) -> Any:
+    if isinstance(frames[0], dict):
+        return {k: np.stack([f[k] for f in frames]) for k in frames[0]}
+    return np.stack(frames)
+
+
+def collect_episodes(sim: Simulator, observations: ObservationBuilder, params: ParamsBuilder,
+                     reward_fn: Callable[[dict], float] | None, action_space: ActionSpace, policy: PolicyFn,
+                     value_fn: Callable[[Any], np.ndarray] | None = None, keep_observations: bool = True,
+                     ndist: np.ndarray | None = None) -> EpisodeBatch:
+    """Run one episode on every car of ``sim`` with ``policy`` and return them.
+
+    ``policy(obs) -> (action, env_action, log_prob, value)`` for a batch (E, ...) of observations;
+    ``env_action`` is what the env receives (indices, or [-1, 1]^2 points). ``reward_fn`` may raise
+    :class:`~laplab.reward.errors.RewardFunctionError`, which propagates. ``ndist`` overrides the
+    round-robin starts (evaluation uses fixed starts).
+    """
+    started = time.perf_counter()
+    num = sim.num_cars
+    sim.reset(ndist=ndist)
+    st = sim.state
+    frames, actions, log_probs, values, rewards, terminated, truncated, valid = [], [], [], [], [], [], [], []
+    bootstrap = []
+    trace_parts: list[dict[str, np.ndarray]] = []
+    total = np.zeros(num)
+    track_len = sim.track.length
+    while (st.status == IN_PROGRESS).any():
+        obs = observations.observe()
+        obs = {k: v.copy() for k, v in obs.items()} if isinstance(obs, dict) else obs.copy()
+        action, env_action, log_prob, value = policy(obs)
+        steer, speed = action_space.to_commands(env_action)
+        stepped = sim.step(steer, speed)
+        cars = np.flatnonzero(stepped)
+        reward = np.zeros(num)
+        if reward_fn is not None and cars.size:
+            reward[cars] = [reward_fn(p) for p in params.build(cars)]
+        total += reward
+        status = st.status
+        done = stepped & (status != IN_PROGRESS)
+        cut = done & (status == TIME_UP)
+        boot = np.zeros(num, dtype=np.float32)
+        if cut.any() and value_fn is not None:
+            final = observations.observe(np.flatnonzero(cut))
+            boot[cut] = value_fn(final)
+        if keep_observations:
+            frames.append(obs)
+        actions.append(action)
+        log_probs.append(log_prob)
+        values.append(value)
+        rewards.append(reward)
+        terminated.append(done & ~cut)
+        truncated.append(cut)
+        valid.append(stepped)
+        bootstrap.append(boot)
+        trace_parts.append(_trace_rows(sim, cars, reward, action_space, env_action, track_len))
+    trace = {k: np.concatenate([p[k] for p in trace_parts]) for k in trace_parts[0]}
+    lap_time = np.where(st.status == LAP_COMPLETE, st.lap_time, np.nan)
+    return EpisodeBatch(
+        observations=_stack(frames) if keep_observations else None, actions=np.stack(actions),
+        log_probs=np.stack(log_probs), values=np.stack(values), rewards=np.stack(rewards),
+        terminated=np.stack(terminated), truncated=np.stack(truncated), valid=np.stack(valid),
+        bootstrap_values=np.stack(bootstrap), total_reward=total, progress=st.progress.copy(),
+        status=st.status.copy(), steps=st.steps.copy(), lap_time=lap_time, duration=st.steps * sim.dt,
+        trace=trace, wall_seconds=time.perf_counter() - started)
+
+
+def _trace_rows(sim: Simulator, cars: np.ndarray, reward: np.ndarray, action_space: ActionSpace,
+                env_action: np.ndarray, track_len: float) -> dict[str, np.ndarray]:
+    """Simtrace columns for the cars stepped this step (episode = car index within the batch)."""
+    st = sim.state
+    seg = st.segment[cars]
+    closest = np.where(st.seg_t[cars] <= 0.5, seg, seg + 1)
+    if action_space.is_discrete:
+        action_col = np.asarray(env_action)[cars].astype(np.int64)
+    else:
+        steer_deg, speed = action_space.to_physical(np.asarray(env_action)[cars])
+        action_col = np.stack([steer_deg, speed], axis=1)
+    status = st.status[cars]
+    return {
+        "episode": cars.astype(np.int64), "steps": st.steps[cars].copy(), "X": st.ref_x[cars].copy(),
+        "Y": st.ref_y[cars].copy(), "yaw": np.degrees(st.yaw[cars]), "steer": np.degrees(st.cmd_steer[cars]),
+        "throttle": st.cmd_speed[cars].copy(), "action": action_col, "reward": reward[cars].copy(),
+        "done": status != IN_PROGRESS, "all_wheels_on_track": st.wheels_on[cars] == 4,
+        "progress": st.progress[cars].copy(), "closest_waypoint": closest.astype(np.int64),
+        "track_len": np.full(cars.size, track_len), "tstamp": st.steps[cars] * sim.dt,
+        "episode_status": np.array(STATUS_NAMES, dtype=object)[status].astype(str),
+    }

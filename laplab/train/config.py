@@ -1,0 +1,99 @@
+"""The full configuration of a training job, stored in the model folder as ``laplab.json``."""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass, field, fields
+
+from laplab.agents.hyperparameters import Hyperparameters, from_dict as hyperparameters_from_dict
+from laplab.env.metadata import ModelMetadata, metadata_from_dict
+from laplab.sim.state import EpisodeParams
+from laplab.track.registry import DEFAULT_TRACK
+
+CONFIG_VERSION = 1
+
+
+class ConfigError(ValueError):
+    """A training option out of range."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that defines a training job (the model folder embeds it, so a job can resume).
+
+    - ``track``: name or path; ``reverse``: drive it the other way; ``alternate_direction``: switch
+      direction every episode.
+    - ``reward_path``: the reward file (None: DeepRacer's follow-the-centre-line example).
+    - ``model_metadata`` / ``hyperparameters``: DeepRacer's JSON forms (validated).
+    - ``max_time_s``: stop after this much wall time; ``max_episodes``: after this many training
+      episodes (default: ``term_cond_max_episodes``); the average score stop uses
+      ``term_cond_avg_score`` against the mean total reward of the last iteration's episodes.
+    - ``eval_episodes``: greedy evaluation laps run after each iteration, from starts spread evenly over
+      the lap (their mean progress picks the best checkpoint).
+    - ``seed``: seeds the network initialisation, sampling and shuffling.
+    - ``num_threads``: torch threads (None: laplab's choice for this machine).
+    """
+
+    track: str = DEFAULT_TRACK
+    reward_path: str | None = None
+    model_metadata: dict = field(default_factory=lambda: ModelMetadata().to_dict())
+    hyperparameters: dict = field(default_factory=lambda: Hyperparameters().to_dict())
+    max_time_s: float = 20 * 60.0
+    max_episodes: int | None = None
+    eval_episodes: int = 3
+    seed: int = 0
+    reverse: bool = False
+    alternate_direction: bool = False
+    vehicle: str = "deepracer"
+    num_threads: int | None = None
+    version: int = CONFIG_VERSION
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.max_time_s) and self.max_time_s > 0):
+            raise ConfigError(f"max time must be a positive number of seconds, got {self.max_time_s!r}")
+        if self.max_episodes is not None and self.max_episodes < 1:
+            raise ConfigError(f"max episodes must be >= 1, got {self.max_episodes!r}")
+        if not 1 <= self.eval_episodes <= 20:
+            raise ConfigError(f"eval episodes must be within 1..20, got {self.eval_episodes!r}")
+        self.metadata()  # validates
+        self.hyper()
+
+    def metadata(self) -> ModelMetadata:
+        return metadata_from_dict(self.model_metadata, "model_metadata")
+
+    def hyper(self) -> Hyperparameters:
+        return hyperparameters_from_dict(self.hyperparameters, "hyperparameters")
+
+    @property
+    def episode_limit(self) -> int:
+        return self.max_episodes if self.max_episodes is not None else self.hyper().term_cond_max_episodes
+
+    def episode_params(self) -> EpisodeParams:
+        return EpisodeParams(reverse=self.reverse, alternate_direction=self.alternate_direction)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "laplab.json") -> "TrainConfig":
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ConfigError(f"{source}: unknown key {unknown[0]!r}")
+        return cls(**data)
+
+
+_DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(s|sec|m|min|h|hr)?\s*$", re.IGNORECASE)
+
+
+def parse_duration(text: str) -> float:
+    """``"90s"``, ``"20m"``, ``"1.5h"`` or plain seconds -> seconds."""
+    match = _DURATION.match(str(text))
+    if not match:
+        raise ConfigError(f"cannot read the duration {text!r}: write e.g. 90s, 20m or 1.5h")
+    value, unit = float(match.group(1)), (match.group(2) or "s").lower()
+    seconds = value * {"s": 1, "sec": 1, "m": 60, "min": 60, "h": 3600, "hr": 3600}[unit]
+    if seconds <= 0:
+        raise ConfigError(f"the duration {text!r} must be positive")
+    return seconds

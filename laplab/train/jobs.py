@@ -1,0 +1,104 @@
+"""Training jobs over model folders: create (immutable names), train, resume, clone."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+from laplab.env.vector import DEFAULT_REWARD
+from laplab.reward.loader import RewardFunction, load_reward_function
+from laplab.reward.validate import validate_reward_function
+from laplab.store.checkpoints import CheckpointStore
+from laplab.store.layout import ModelFolder, model_folder, validate_model_name
+from laplab.train.config import TrainConfig
+from laplab.train.trainer import Trainer, load_checkpoint, load_weights_only
+from laplab.track.registry import load_track
+
+
+class JobError(ValueError):
+    """A job that cannot start: a name clash, a missing model, a clone that does not match."""
+
+
+def reward_file(config: TrainConfig) -> Path:
+    return Path(config.reward_path) if config.reward_path else DEFAULT_REWARD
+
+
+def load_and_validate_reward(config: TrainConfig, path: Path | None = None) -> RewardFunction:
+    """Load the job's reward function and run the validation sweep; raises RewardFunctionError."""
+    metadata = config.metadata()
+    reward_fn = load_reward_function(path or reward_file(config), max_speed=metadata.action_space.max_speed)
+    report = validate_reward_function(reward_fn, load_track(config.track), metadata.action_space)
+    if not report.passed:
+        raise report.error
+    return reward_fn
+
+
+def create_training(name: str, config: TrainConfig, init_weights: dict | None = None) -> Trainer:
+    """Validate everything, create the model folder and return a :class:`Trainer` for it.
+
+    Refuses an existing name (a model is immutable). Nothing is written before validation passes.
+    """
+    validate_model_name(name)
+    folder = model_folder(name)
+    if folder.exists():
+        raise JobError(f"a model named {name!r} already exists at {folder.root}; models are immutable: "
+                       f"pick another name, `laplab clone {name} NEW` to continue from it, or "
+                       f"`laplab train --resume {name}` if its training was interrupted.")
+    load_track(config.track)
+    reward_fn = load_and_validate_reward(config)
+    folder.create()
+    folder.write_model_metadata(config.metadata().to_dict())
+    folder.write_hyperparameters(config.hyper().to_dict())
+    folder.write_reward_function(reward_file(config).read_text())
+    folder.write_laplab_config(config.to_dict())
+    trainer = Trainer(folder, config, reward_fn)
+    if init_weights is not None:
+        load_weights_only(trainer.learner, init_weights)
+    trainer.save_initial_checkpoint()
+    return trainer
+
+
+def resume_training(name: str, max_time_s: float | None = None) -> Trainer:
+    """A Trainer that continues ``name`` from its last checkpoint (iteration count continues)."""
+    folder = model_folder(name)
+    if not folder.exists():
+        raise JobError(f"no model named {name!r} to resume (looked in {folder.root}).")
+    config = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
+    if max_time_s is not None:
+        config = replace(config, max_time_s=max_time_s)
+    reward_fn = load_and_validate_reward(config, folder.reward_function)
+    state = load_checkpoint(CheckpointStore(folder).resolve("last"))
+    if folder.error_file.exists():
+        folder.error_file.unlink()
+    return Trainer(folder, config, reward_fn, resume_from=state)
+
+
+def clone_config(source: str, overrides: dict) -> tuple[TrainConfig, dict]:
+    """The config of a clone of ``source`` with ``overrides`` applied, and the weights to start from.
+
+    The action space and the sensors cannot change (DeepRacer's rule): a different
+    model_metadata.json is refused with a message naming what differs.
+    """
+    folder = model_folder(source)
+    if not folder.exists():
+        raise JobError(f"no model named {source!r} to clone (looked in {folder.root}).")
+    base = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
+    if overrides.get("reward_path") is None:
+        overrides = {**overrides, "reward_path": str(folder.reward_function)}
+    new_meta = overrides.get("model_metadata")
+    if new_meta is not None:
+        old, new = base.metadata(), replace(base, model_metadata=new_meta).metadata()
+        for what, a, b in (("action space", old.action_space, new.action_space), ("sensors", old.sensors, new.sensors),
+                           ("neural network", old.neural_network, new.neural_network),
+                           ("training algorithm", old.training_algorithm, new.training_algorithm)):
+            if a != b:
+                raise JobError(f"a clone keeps its source's {what}: {source!r} has {_show(a)}, the new "
+                               f"model_metadata.json asks for {_show(b)}.")
+    config = replace(base, **{k: v for k, v in overrides.items() if v is not None})
+    state = load_checkpoint(CheckpointStore(folder).resolve("best"))
+    return config, state["learner"]
+
+
+def _show(value) -> str:
+    return json.dumps(value.to_json()) if hasattr(value, "to_json") else str(value)

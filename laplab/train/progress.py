@@ -1,0 +1,56 @@
+"""A terminal progress display for training jobs (a trainer callback)."""
+
+from __future__ import annotations
+
+from rich.console import Console
+
+from laplab.train.trainer import IterationReport, Trainer, TrainResult
+
+_HEADER = (f"{'iter':>5} {'episodes':>8} {'steps':>8} {'reward':>9} {'progress':>8} {'laps %':>6} "
+           f"{'eval':>9} {'best lap':>9} {'steps/s':>8} {'left':>6}")
+
+
+def _clock(seconds: float) -> str:
+    seconds = int(round(seconds))
+    return f"{seconds // 60}:{seconds % 60:02d}"
+
+
+class ProgressPrinter:
+    """Prints one row per iteration: iteration, episodes, steps, mean reward and progress, % of
+    episodes that lapped, evaluation laps completed, best lap so far, env steps/s, time left."""
+
+    def __init__(self, console: Console, trainer: Trainer, quiet: bool = False):
+        self.console, self.trainer, self.quiet = console, trainer, quiet
+        self._printed_header = False
+        if not quiet:
+            cfg = trainer.config
+            meta = trainer.metadata
+            console.print(f"training [bold]{trainer.folder.name}[/bold] on {cfg.track} with "
+                          f"{meta.training_algorithm}, sensors {'+'.join(meta.sensors)}, "
+                          f"{meta.action_space.kind} actions; stop after {_clock(cfg.max_time_s)} "
+                          f"or {cfg.episode_limit} episodes. Ctrl-C stops and keeps the model.")
+
+    def __call__(self, report: IterationReport) -> None:
+        if self.quiet:
+            return
+        if not self._printed_header:
+            self.console.print(_HEADER, style="bold")
+            self._printed_header = True
+        best = f"{report.best_lap_time:.3f}s" if report.best_lap_time else "-"
+        self.console.print(
+            f"{report.iteration:5d} {report.episodes:8d} {report.env_steps:8d} {report.mean_reward:9.2f} "
+            f"{report.mean_progress:7.1f}% {100 * report.completion_rate:5.0f}% "
+            f"{report.eval_completed:>3d}/{report.eval_episodes:<1d} {report.eval_progress:3.0f}% "
+            f"{best:>9} {report.steps_per_second:8.0f} {_clock(report.time_left_s):>6}")
+
+    def summary(self, result: TrainResult) -> None:
+        reasons = {"max_time": "reached the time limit", "max_episodes": "reached the episode limit",
+                   "avg_score": "reached the average score", "stopped": "stopped on request",
+                   "reward_error": "stopped: the reward function failed"}
+        best = f"{result.best_lap_time:.3f} s" if result.best_lap_time else "none yet"
+        self.console.print(f"{self.trainer.folder.name}: {reasons.get(result.stop_reason, result.stop_reason)} after "
+                           f"{result.iterations} iterations, {result.episodes} episodes, {result.env_steps} steps "
+                           f"in {_clock(result.elapsed_s)}; best lap {best}. Model: {self.trainer.folder.root}")
+        if result.error:
+            self.console.print(f"[red]reward function error[/red] (also in {self.trainer.folder.error_file}):")
+            self.console.print(result.error, markup=False)
