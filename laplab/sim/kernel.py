@@ -20,7 +20,7 @@ from laplab.vehicle.dynamics import advance_car
 PARALLEL_THRESHOLD = 32  # cars; below it the serial loop is faster
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)  # not inlined: numba parfors drop writes through NamedTuple arrays (numba#5872)
 def _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing):
     (wheelbase, steer_rate, max_accel, max_brake, max_lat, max_steer, dt, substeps,
      ref_offset, half_track, max_speed) = vc
