@@ -1,38 +1,66 @@
 """Observations of a batch of cars, from the sensors that model_metadata.json lists.
 
-An :class:`ObservationBuilder` owns the spaces and preallocated buffers for one sensor set. A single
-sensor gives a Box observation; several give a Dict keyed by DeepRacer's sensor names.
+An :class:`ObservationBuilder` owns the spaces and readers for one sensor set. A single sensor gives
+a Box observation; several give a Dict keyed by DeepRacer's sensor names. ``STATE`` is computed by
+the simulator's step kernel; lidar and cameras are computed from the cars' poses when observed.
 """
 
 from __future__ import annotations
 
+from typing import Callable
+
 import gymnasium as gym
 import numpy as np
 
-from laplab.env.metadata import STATE_SENSOR, ModelMetadata
+from laplab.env.metadata import CAMERA_SENSORS, LIDAR_SENSORS, STATE_SENSOR, ModelMetadata
 from laplab.sim.simulator import Simulator
+
+Reader = Callable[[np.ndarray], np.ndarray]  # car indices (K,) -> (K, *shape)
 
 
 class ObservationBuilder:
-    """Builds the observation of every car of a :class:`Simulator` for the sensors of a model."""
+    """Builds the observation of the cars of a :class:`Simulator` for the sensors of a model.
 
-    def __init__(self, sim: Simulator, metadata: ModelMetadata):
+    ``seed`` seeds the sensor noise (lidar's Gaussian noise); ``sensor_noise=False`` gives exact
+    readings (evaluation of a deterministic policy, tests).
+    """
+
+    def __init__(self, sim: Simulator, metadata: ModelMetadata, seed: int | None = None, sensor_noise: bool = True):
         self.sim = sim
         self.sensors = metadata.sensors
-        self._parts: dict[str, tuple[gym.spaces.Box, callable]] = {}
+        self.rng = np.random.default_rng(seed) if sensor_noise else None
+        self._parts: dict[str, tuple[gym.spaces.Box, Reader]] = {}
         for sensor in self.sensors:
             if sensor == STATE_SENSOR:
-                size = sim.obs.shape[1]
-                box = gym.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
+                box = gym.spaces.Box(-np.inf, np.inf, shape=(sim.obs.shape[1],), dtype=np.float32)
                 self._parts[sensor] = (box, lambda cars: sim.obs[cars])
-            else:
-                raise NotImplementedError(
-                    f"sensor {sensor!r} is not available in this build of laplab yet; use STATE.")
+            elif sensor in LIDAR_SENSORS:
+                self._parts[sensor] = self._lidar_part(sensor, metadata.lidar_config)
+            elif sensor in CAMERA_SENSORS:
+                self._parts[sensor] = self._camera_part(sensor)
         boxes = {name: box for name, (box, _) in self._parts.items()}
-        self.single_space: gym.Space = (next(iter(boxes.values())) if len(boxes) == 1 else gym.spaces.Dict(boxes))
+        self.single_space: gym.Space = next(iter(boxes.values())) if len(boxes) == 1 else gym.spaces.Dict(boxes)
+
+    def _lidar_part(self, sensor: str, lidar_config: dict | None) -> tuple[gym.spaces.Box, Reader]:
+        from laplab.sensors.lidar import DEFAULT_LIDAR, LidarWalls, lidar_observation, lidar_observation_shape, scan
+        walls = LidarWalls.from_track(self.sim.track)
+        shape = lidar_observation_shape(sensor, lidar_config, DEFAULT_LIDAR.num_beams)
+        low, high = (0.0, np.inf) if sensor == "LIDAR" else (0.0, 1.0)
+        box = gym.spaces.Box(low, high, shape=shape, dtype=np.float32)
+        poses = self.sim.poses
+
+        def read(cars: np.ndarray) -> np.ndarray:
+            ranges = scan(walls, poses()[cars], DEFAULT_LIDAR, rng=self.rng, parallel=False)
+            return lidar_observation(sensor, ranges, lidar_config).astype(np.float32, copy=False)
+        return box, read
+
+    def _camera_part(self, sensor: str) -> tuple[gym.spaces.Box, Reader]:
+        raise NotImplementedError(f"the {sensor} sensor is not available in this build of laplab yet")
 
     def observe(self, cars: np.ndarray | slice = slice(None)):
         """Observations of the selected cars: an array (or a dict of arrays) with a leading car axis."""
+        if isinstance(cars, slice):
+            cars = np.arange(self.sim.num_cars)[cars]
         if len(self._parts) == 1:
             (_, read), = self._parts.values()
             return read(cars)

@@ -62,6 +62,10 @@ class EpisodeBatch:
         return [STATUS_NAMES[s] for s in self.status]
 
 
+class CollectionAborted(Exception):
+    """``should_abort()`` returned True during collection; the partial episodes are discarded."""
+
+
 PolicyFn = Callable[[Any], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
 
 
@@ -74,13 +78,15 @@ def _stack(frames: list) -> Any:
 def collect_episodes(sim: Simulator, observations: ObservationBuilder, params: ParamsBuilder,
                      reward_fn: Callable[[dict], float] | None, action_space: ActionSpace, policy: PolicyFn,
                      value_fn: Callable[[Any], np.ndarray] | None = None, keep_observations: bool = True,
-                     ndist: np.ndarray | None = None) -> EpisodeBatch:
+                     ndist: np.ndarray | None = None,
+                     should_abort: Callable[[], bool] | None = None) -> EpisodeBatch:
     """Run one episode on every car of ``sim`` with ``policy`` and return them.
 
     ``policy(obs) -> (action, env_action, log_prob, value)`` for a batch (E, ...) of observations;
     ``env_action`` is what the env receives (indices, or [-1, 1]^2 points). ``reward_fn`` may raise
     :class:`~laplab.reward.errors.RewardFunctionError`, which propagates. ``ndist`` overrides the
-    round-robin starts (evaluation uses fixed starts).
+    round-robin starts (evaluation uses fixed starts). ``should_abort`` is polled every step; when it
+    returns True, :class:`CollectionAborted` is raised.
     """
     started = time.perf_counter()
     num = sim.num_cars
@@ -92,6 +98,8 @@ def collect_episodes(sim: Simulator, observations: ObservationBuilder, params: P
     total = np.zeros(num)
     track_len = sim.track.length
     while (st.status == IN_PROGRESS).any():
+        if should_abort is not None and should_abort():
+            raise CollectionAborted
         obs = observations.observe()
         obs = {k: v.copy() for k, v in obs.items()} if isinstance(obs, dict) else obs.copy()
         action, env_action, log_prob, value = policy(obs)

@@ -27,7 +27,7 @@ from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import ModelFolder
 from laplab.store.metrics import TrainingMetricsWriter
 from laplab.store.simtrace import SimtraceWriter
-from laplab.train.collect import EpisodeBatch, collect_episodes
+from laplab.train.collect import CollectionAborted, EpisodeBatch, collect_episodes
 from laplab.train.config import TrainConfig
 from laplab.track.registry import load_track
 from laplab.vehicle.params import vehicle_preset
@@ -71,11 +71,12 @@ Callback = Callable[[IterationReport], None]
 def build_learner(config: TrainConfig, observation_space, seed: int):
     metadata, hp = config.metadata(), config.hyper()
     action_space = metadata.action_space.gym_space()
-    if metadata.training_algorithm == "sac":
-        return SACLearner(observation_space, action_space, hp, metadata.neural_network, seed=seed,
-                          num_threads=config.num_threads)
-    return PPOLearner(observation_space, action_space, hp, metadata.neural_network, seed=seed,
-                      num_threads=config.num_threads)
+    # Small vector networks run fastest on one thread (more threads only add synchronisation, and
+    # collapse when the cores are shared); camera networks use every core.
+    threads = config.num_threads or (1 if metadata.camera is None else None)
+    learner_class = SACLearner if metadata.training_algorithm == "sac" else PPOLearner
+    return learner_class(observation_space, action_space, hp, metadata.neural_network, seed=seed,
+                         num_threads=threads)
 
 
 def checkpoint_bytes(learner, iteration: int, env_steps: int, episodes: int, best_lap_time: float | None) -> bytes:
@@ -164,10 +165,11 @@ class Trainer:
             return step.action, step.env_action, step.log_prob, step.value
         return act
 
-    def _collect(self) -> EpisodeBatch:
+    def _collect(self, should_abort) -> EpisodeBatch:
         value_fn = self.learner.values if isinstance(self.learner, PPOLearner) else None
         return collect_episodes(self.sim, self.observations, self.params, self.reward_fn,
-                                self.metadata.action_space, self._policy(False), value_fn)
+                                self.metadata.action_space, self._policy(False), value_fn,
+                                should_abort=should_abort)
 
     def _learn(self, batch: EpisodeBatch) -> dict[str, float]:
         if isinstance(self.learner, PPOLearner):
@@ -232,8 +234,12 @@ class Trainer:
                 reason = "max_episodes"
                 break
             t0 = time.perf_counter()
+            deadline = started + cfg.max_time_s
             try:
-                batch = self._collect()
+                batch = self._collect(lambda: should_stop() or time.perf_counter() >= deadline)
+            except CollectionAborted:  # the partial iteration is dropped; the last checkpoint stands
+                reason = "stopped" if should_stop() else "max_time"
+                break
             except RewardFunctionError as exc:
                 error, reason = str(exc), "reward_error"
                 self.folder.write_error(error)
