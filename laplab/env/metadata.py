@@ -63,9 +63,9 @@ def validate_sensors(sensors: object, source: str) -> tuple[str, ...]:
     cameras = [s for s in sensors if s in CAMERA_SENSORS]
     lidars = [s for s in sensors if s in LIDAR_SENSORS]
     if len(cameras) > 1:
-        raise MetadataError(f"{source}: a model has exactly one camera sensor, this one lists {cameras}.")
+        raise MetadataError(f"{source}: 'sensor' lists {len(cameras)} cameras {cameras}; a model has exactly one.")
     if len(lidars) > 1:
-        raise MetadataError(f"{source}: a model has at most one lidar sensor, this one lists {lidars}.")
+        raise MetadataError(f"{source}: 'sensor' lists {len(lidars)} lidars {lidars}; a model has at most one.")
     if not cameras and STATE_SENSOR not in sensors:
         raise MetadataError(f"{source}: a model needs one camera sensor ({', '.join(CAMERA_SENSORS)}) "
                             f"or laplab's STATE sensor; 'sensor' lists only {sensors}.")
