@@ -20,14 +20,15 @@ from laplab.vehicle.dynamics import advance_car
 PARALLEL_THRESHOLD = 32  # cars; below it the serial loop is faster
 
 
-@nb.njit(cache=True)  # not inlined: numba parfors drop writes through NamedTuple arrays (numba#5872)
+@nb.njit(cache=True, inline="always")
 def _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing):
     (wheelbase, steer_rate, max_accel, max_brake, max_lat, max_steer, dt, substeps,
      ref_offset, half_track, max_speed) = vc
     max_steps, reversed_steps, immobilized_steps, immobilized_distance = rules
     geo = fwd if st.direction[i] == 0 else rev
-    centerline, arc_length, left_w, right_w = geo.centerline, geo.arc_length, geo.left_width, geo.right_width
-    length, far_gap = geo.length, geo.far_gap
+    centerline, segments, arc_length = geo.centerline, geo.segments, geo.arc_length
+    left_w, right_w = geo.left_width, geo.right_width
+    length, far_gap, window = geo.length, geo.far_gap, geo.window
 
     x0, y0 = st.x[i], st.y[i]
     x, y, yaw, speed, steer = advance_car(x0, y0, st.yaw[i], st.speed[i], st.steer[i], cmd_steer[i],
@@ -37,7 +38,7 @@ def _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count,
     st.cmd_steer[i], st.cmd_speed[i] = cmd_steer[i], cmd_speed[i]
     c, s = math.cos(yaw), math.sin(yaw)
     rx, ry = x + ref_offset * c, y + ref_offset * s
-    seg, t, arc, lateral, _ = project_point(rx, ry, centerline, arc_length, far_gap, st.segment[i])
+    seg, t, arc, lateral, _ = project_point(rx, ry, segments, arc_length, far_gap, window, st.segment[i])
     st.ref_x[i], st.ref_y[i] = rx, ry
     st.segment[i], st.seg_t[i], st.lateral[i] = seg, t, lateral
 
@@ -56,7 +57,7 @@ def _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count,
     wheels = 0
     for fx, fy in ((wheelbase, half_track), (wheelbase, -half_track), (0.0, half_track), (0.0, -half_track)):
         wx, wy = x + c * fx - s * fy, y + s * fx + c * fy
-        if point_on_track(wx, wy, centerline, arc_length, left_w, right_w, far_gap, seg):
+        if point_on_track(wx, wy, segments, arc_length, left_w, right_w, far_gap, window, seg):
             wheels += 1
     st.wheels_on[i] = wheels
 
@@ -86,23 +87,30 @@ def _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count,
 
 
 @nb.njit(cache=True)
-def _step_serial(st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing):
-    for i in range(st.x.shape[0]):
+def _step_range(lo, hi, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing):
+    for i in range(lo, hi):
         if st.status[i] == IN_PROGRESS:
             _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing)
 
 
 @nb.njit(cache=True, parallel=True)
-def _step_parallel(st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing):
-    for i in nb.prange(st.x.shape[0]):
-        if st.status[i] == IN_PROGRESS:
-            _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing)
+def _step_parallel(chunks, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing):
+    # One non-inlined call per chunk: numba parfors drop writes made through NamedTuple arrays
+    # inside an inlined prange body (numba#5872), and the chunk loop keeps the per-car body inlined.
+    n = st.x.shape[0]
+    size = (n + chunks - 1) // chunks
+    for c in nb.prange(chunks):
+        _step_range(min(c * size, n), min((c + 1) * size, n), st, cmd_steer, cmd_speed, fwd, rev, vc, rules,
+                    obs, look_count, look_spacing)
 
 
 def step_kernel(st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing) -> None:
     """Advance every in-progress car in ``st`` in place; fills ``obs`` rows (N, D) for them."""
-    loop = _step_parallel if st.x.shape[0] >= PARALLEL_THRESHOLD else _step_serial
-    loop(st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing)
+    n = st.x.shape[0]
+    if n >= PARALLEL_THRESHOLD:
+        _step_parallel(8 * nb.get_num_threads(), st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing)
+    else:
+        _step_range(0, n, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing)
 
 
 @nb.njit(cache=True)

@@ -14,8 +14,7 @@ import numpy as np
 
 from laplab.track.geometry import Track
 
-SEARCH_WINDOW = 12  # segments searched either side of the hint
-LOCAL_SEPARATION = 6  # segments closer than this (cyclically) count as "local" for the gap
+FAR_ARC = 1.0  # m: segments at least this far apart along the loop count as "far" for the gap
 
 
 class TrackArrays(NamedTuple):
@@ -27,7 +26,9 @@ class TrackArrays(NamedTuple):
     right_width: np.ndarray  # (N,)
     road_width: np.ndarray  # (N,)
     length: float
-    far_gap: float  # min distance between centre-line segments >= LOCAL_SEPARATION apart, m
+    segments: np.ndarray  # (N-1, 5) per segment: start x, start y, dx, dy, 1 / length^2
+    far_gap: np.ndarray  # (N-1,) distance from each segment to the nearest segment >= FAR_ARC away along the loop, m
+    window: np.ndarray  # (N-1, 2) int64: segments searched before / after a hint (covering 2 x FAR_ARC of arc)
 
 
 class Projection(NamedTuple):
@@ -41,72 +42,111 @@ class Projection(NamedTuple):
 
 def track_arrays(track: Track) -> TrackArrays:
     """Pack a track for the kernels (computes the far-segment gap once)."""
+    c = track.centerline
+    d = np.diff(c, axis=0)
+    len_sq = (d * d).sum(axis=1)
+    inv = np.where(len_sq > 1e-18, 1.0 / np.maximum(len_sq, 1e-18), 0.0)
+    segments = np.ascontiguousarray(np.column_stack([c[:-1], d, inv]))
     return TrackArrays(track.centerline, track.arc_length, track.left_width, track.right_width,
-                       track.road_width, track.length, _far_segment_gap(track.centerline))
+                       track.road_width, track.length, segments, *_far_segment_gap(c, track.arc_length))
 
 
-def _far_segment_gap(centerline: np.ndarray) -> float:
-    """Smallest distance between two centre-line segments at least LOCAL_SEPARATION segments apart."""
+def _arc_separation(arc_length: np.ndarray) -> np.ndarray:
+    """(M, M) arc length between the nearer ends of segments i and j, along the loop (0 for neighbours)."""
+    length = arc_length[-1]
+    seg_len = np.diff(arc_length)
+    mid = arc_length[:-1] + 0.5 * seg_len
+    apart = np.abs(mid[:, None] - mid[None, :])
+    apart = np.minimum(apart, length - apart)
+    return np.maximum(apart - 0.5 * (seg_len[:, None] + seg_len[None, :]), 0.0)
+
+
+def _far_segment_gap(centerline: np.ndarray, arc_length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per segment: the distance to the nearest segment at least FAR_ARC away along the loop (0 where
+    two such segments cross), and the search window (segments before, after) that covers 2 x FAR_ARC
+    of arc either side, so any segment the car can reach in one step plus FAR_ARC lies inside it."""
     a, b = centerline[:-1], centerline[1:]
     m = a.shape[0]
-    idx = np.arange(m)
-    sep = np.abs(idx[:, None] - idx[None, :])
-    sep = np.minimum(sep, m - sep)
-    far = sep >= LOCAL_SEPARATION
-    if not far.any():
-        return 0.0
-    best = np.inf
+    separation = _arc_separation(arc_length)
+    far = separation >= FAR_ARC
+    window = np.empty((m, 2), dtype=np.int64)
+    for side, col in ((-1, 0), (1, 1)):
+        shifts = np.arange(1, m // 2 + 1)
+        idx = (np.arange(m)[:, None] + side * shifts[None, :]) % m
+        covered = separation[np.arange(m)[:, None], idx] < 2 * FAR_ARC
+        # number of leading shifts still within 2 x FAR_ARC, plus one segment beyond
+        window[:, col] = np.minimum(np.argmin(np.concatenate([covered, np.zeros((m, 1), bool)], axis=1), axis=1) + 1,
+                                    m // 2)
+    seg = b - a
+    len_sq = np.maximum((seg * seg).sum(-1), 1e-18)
+    dist = np.full((m, m), np.inf)
     for points in (a, b):  # endpoint-to-segment distances bound segment-segment distances (no crossings)
-        seg = b - a
         rel = points[:, None, :] - a[None, :, :]
-        t = np.clip((rel * seg[None]).sum(-1) / np.maximum((seg * seg).sum(-1), 1e-18)[None], 0.0, 1.0)
-        d = np.sqrt(((rel - t[..., None] * seg[None]) ** 2).sum(-1))
-        best = min(best, float(d[far].min()), float(d.T[far].min()))
-    return best
+        t = np.clip((rel * seg[None]).sum(-1) / len_sq[None], 0.0, 1.0)
+        d = np.sqrt(((rel - t[..., None] * seg[None]) ** 2).sum(-1))  # d[i, j]: endpoint of i to segment j
+        dist = np.minimum(dist, np.minimum(d, d.T))
+    dist = np.where(far, dist, np.inf)
+    gap = dist.min(axis=1)
+    return np.where(np.isfinite(gap), gap, np.inf), window
 
 
 @nb.njit(cache=True, inline="always")
-def _segment_distance_sq(px, py, ax, ay, bx, by):
-    dx, dy = bx - ax, by - ay
-    len_sq = dx * dx + dy * dy
-    t = 0.0
-    if len_sq > 1e-18:
-        t = ((px - ax) * dx + (py - ay) * dy) / len_sq
-        t = min(max(t, 0.0), 1.0)
+def _segment_distance_sq(px, py, segments, i):
+    ax, ay, dx, dy, inv_len_sq = segments[i, 0], segments[i, 1], segments[i, 2], segments[i, 3], segments[i, 4]
+    t = min(max(((px - ax) * dx + (py - ay) * dy) * inv_len_sq, 0.0), 1.0)
     qx, qy = ax + t * dx - px, ay + t * dy - py
     return qx * qx + qy * qy, t
 
 
+@nb.njit(cache=True, inline="always")
+def _arc_between(arc_length, i, j):
+    """Arc length from the end of segment i forward to the start of segment j (cyclic), m; 0 when
+    i == j (the window's end segment is the best one: no coverage beyond it)."""
+    if i == j:
+        return 0.0
+    gap = arc_length[j] - arc_length[i + 1]
+    return gap + arc_length[-1] if gap < 0.0 else gap
+
+
 @nb.njit(cache=True)
-def project_point(px, py, centerline, arc_length, far_gap, hint):
+def project_point(px, py, segments, arc_length, far_gap, window, hint):
     """Project one point; returns (segment, t in [0,1], arc length, signed lateral, distance).
 
-    ``hint`` is the segment found last time (-1 for none). The window result is kept only when no
-    segment outside the window can be nearer (distance < far_gap / 2 and the best segment is not at the
-    window's edge); otherwise every segment is searched.
+    ``segments``, ``far_gap`` and ``window`` as in :class:`TrackArrays`; ``hint`` is the segment
+    found last time (-1 for none). The window's best segment b is kept only when no segment outside the
+    window can be nearer: the window reaches at least FAR_ARC beyond b on both sides, and the point is
+    nearer to b than half of b's ``far_gap`` (every segment FAR_ARC or more away along the loop is at
+    least ``far_gap`` from b). Otherwise every segment is searched.
     """
-    n_seg = centerline.shape[0] - 1
+    n_seg = segments.shape[0]
     best_i, best_t, best_d2 = -1, 0.0, np.inf
-    if hint >= 0 and n_seg > 2 * SEARCH_WINDOW + 1:
-        best_k = 0
-        for k in range(-SEARCH_WINDOW, SEARCH_WINDOW + 1):
-            i = (hint + k) % n_seg
-            d2, t = _segment_distance_sq(px, py, centerline[i, 0], centerline[i, 1],
-                                         centerline[i + 1, 0], centerline[i + 1, 1])
-            if d2 < best_d2:
-                best_i, best_t, best_d2, best_k = i, t, d2, k
-        if abs(best_k) > SEARCH_WINDOW - LOCAL_SEPARATION or 4.0 * best_d2 >= far_gap * far_gap:
-            best_i = -1
+    if hint >= 0:
+        back, fwd = window[hint, 0], window[hint, 1]
+        if back + fwd + 1 < n_seg:
+            for k in range(-back, fwd + 1):
+                i = hint + k
+                if i < 0:
+                    i += n_seg
+                elif i >= n_seg:
+                    i -= n_seg
+                d2, t = _segment_distance_sq(px, py, segments, i)
+                if d2 < best_d2:
+                    best_i, best_t, best_d2 = i, t, d2
+            first = hint - back if hint - back >= 0 else hint - back + n_seg
+            last = hint + fwd if hint + fwd < n_seg else hint + fwd - n_seg
+            gap = far_gap[best_i]
+            if (4.0 * best_d2 >= gap * gap or _arc_between(arc_length, first, best_i) < FAR_ARC
+                    or _arc_between(arc_length, best_i, last) < FAR_ARC):
+                best_i = -1
     if best_i < 0:
         best_d2 = np.inf
         for i in range(n_seg):
-            d2, t = _segment_distance_sq(px, py, centerline[i, 0], centerline[i, 1],
-                                         centerline[i + 1, 0], centerline[i + 1, 1])
+            d2, t = _segment_distance_sq(px, py, segments, i)
             if d2 < best_d2:
                 best_i, best_t, best_d2 = i, t, d2
-    ax, ay = centerline[best_i, 0], centerline[best_i, 1]
-    dx, dy = centerline[best_i + 1, 0] - ax, centerline[best_i + 1, 1] - ay
-    seg_len = np.sqrt(dx * dx + dy * dy)
+    ax, ay = segments[best_i, 0], segments[best_i, 1]
+    dx, dy = segments[best_i, 2], segments[best_i, 3]
+    seg_len = arc_length[best_i + 1] - arc_length[best_i]
     s = arc_length[best_i] + best_t * seg_len
     dist = np.sqrt(best_d2)
     cross = dx * (py - ay) - dy * (px - ax)
@@ -123,9 +163,9 @@ def interpolate_at_segment(values, segment, t):
 
 
 @nb.njit(cache=True)
-def point_on_track(px, py, centerline, arc_length, left_width, right_width, far_gap, hint):
+def point_on_track(px, py, segments, arc_length, left_width, right_width, far_gap, window, hint):
     """True when the point lies between the borders (lateral offset within the local widths)."""
-    seg, t, _, lateral, _ = project_point(px, py, centerline, arc_length, far_gap, hint)
+    seg, t, _, lateral, _ = project_point(px, py, segments, arc_length, far_gap, window, hint)
     if lateral >= 0.0:
         return lateral <= interpolate_at_segment(left_width, seg, t)
     return -lateral <= interpolate_at_segment(right_width, seg, t)
@@ -134,17 +174,17 @@ def point_on_track(px, py, centerline, arc_length, left_width, right_width, far_
 PARALLEL_MIN_POINTS = 512  # below this, starting numba's thread pool costs more than it saves
 
 
-def _project_loop(points, centerline, arc_length, far_gap, hints, seg_out, s_out, lat_out, dist_out):
+def _project_loop(points, segments, arc_length, far_gap, window, hints, seg_out, s_out, lat_out, dist_out):
     for j in nb.prange(points.shape[0]):
-        seg, _, s, lat, dist = project_point(points[j, 0], points[j, 1], centerline, arc_length,
-                                             far_gap, hints[j])
+        seg, _, s, lat, dist = project_point(points[j, 0], points[j, 1], segments, arc_length,
+                                             far_gap, window, hints[j])
         seg_out[j], s_out[j], lat_out[j], dist_out[j] = seg, s, lat, dist
 
 
-def _on_track_loop(points, centerline, arc_length, left_width, right_width, far_gap, hints, out):
+def _on_track_loop(points, segments, arc_length, left_width, right_width, far_gap, window, hints, out):
     for j in nb.prange(points.shape[0]):
-        out[j] = point_on_track(points[j, 0], points[j, 1], centerline, arc_length, left_width,
-                                right_width, far_gap, hints[j])
+        out[j] = point_on_track(points[j, 0], points[j, 1], segments, arc_length, left_width,
+                                right_width, far_gap, window, hints[j])
 
 
 # Each loop compiled twice: serial for small batches, parallel for large ones.
@@ -173,7 +213,7 @@ def project_points(arrays: TrackArrays, points, hints=None) -> Projection:
     m = pts.shape[0]
     out = Projection(np.empty(m, np.int64), np.empty(m), np.empty(m), np.empty(m))
     loop = _project_parallel if m >= PARALLEL_MIN_POINTS else _project_serial
-    loop(pts, arrays.centerline, arrays.arc_length, arrays.far_gap, _as_hints(hints, m), *out)
+    loop(pts, arrays.segments, arrays.arc_length, arrays.far_gap, arrays.window, _as_hints(hints, m), *out)
     return out
 
 
@@ -182,8 +222,8 @@ def points_on_track(arrays: TrackArrays, points, hints=None) -> np.ndarray:
     pts = _as_points(points)
     out = np.empty(pts.shape[0], dtype=np.bool_)
     loop = _on_track_parallel if pts.shape[0] >= PARALLEL_MIN_POINTS else _on_track_serial
-    loop(pts, arrays.centerline, arrays.arc_length, arrays.left_width, arrays.right_width,
-                   arrays.far_gap, _as_hints(hints, pts.shape[0]), out)
+    loop(pts, arrays.segments, arrays.arc_length, arrays.left_width, arrays.right_width,
+                   arrays.far_gap, arrays.window, _as_hints(hints, pts.shape[0]), out)
     return out
 
 
