@@ -120,7 +120,7 @@ def project_point(px, py, segments, arc_length, far_gap, window, hint):
     """
     n_seg = segments.shape[0]
     best_i, best_t, best_d2 = -1, 0.0, np.inf
-    if hint >= 0:
+    if 0 <= hint < n_seg:  # an out-of-range hint (stale, from another track) means no hint
         back, fwd = window[hint, 0], window[hint, 1]
         if back + fwd + 1 < n_seg:
             for k in range(-back, fwd + 1):
