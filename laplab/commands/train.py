@@ -106,8 +106,8 @@ def run_train(args: argparse.Namespace) -> int:
     if args.resume:
         if args.name:
             raise UserError("give either --name (a new model) or --resume NAME, not both")
-        max_time = _overrides(args)["max_time_s"]
-        trainer = resume_training(args.resume, max_time)
+        overrides = _overrides(args)
+        trainer = resume_training(args.resume, overrides["max_time_s"], overrides["max_episodes"])
         console.print(f"resuming {args.resume} at iteration {trainer.iteration} ({trainer.episodes} episodes)")
     else:
         if not args.name:

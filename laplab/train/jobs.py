@@ -59,14 +59,19 @@ def create_training(name: str, config: TrainConfig, init_weights: dict | None = 
     return trainer
 
 
-def resume_training(name: str, max_time_s: float | None = None) -> Trainer:
-    """A Trainer that continues ``name`` from its last checkpoint (iteration count continues)."""
+def resume_training(name: str, max_time_s: float | None = None, max_episodes: int | None = None) -> Trainer:
+    """A Trainer that continues ``name`` from its last checkpoint (iteration count continues).
+
+    ``max_time_s`` (a new budget for this session) and ``max_episodes`` (a new total) override the
+    stored stop conditions."""
     folder = model_folder(name)
     if not folder.exists():
         raise JobError(f"no model named {name!r} to resume (looked in {folder.root}).")
     config = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
     if max_time_s is not None:
         config = replace(config, max_time_s=max_time_s)
+    if max_episodes is not None:
+        config = replace(config, max_episodes=max_episodes)
     reward_fn = load_and_validate_reward(config, folder.reward_function)
     state = load_checkpoint(CheckpointStore(folder).resolve("last"))
     if folder.error_file.exists():
