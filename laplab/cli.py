@@ -16,6 +16,12 @@ COMMAND_MODULES = (
     "laplab.commands.tracks",
     "laplab.commands.reward",
     "laplab.commands.train",
+    "laplab.commands.evaluate",
+    "laplab.commands.leaderboard",
+    "laplab.commands.raceline",
+    "laplab.commands.report",
+    "laplab.commands.export",
+    "laplab.commands.render",
 )
 
 
