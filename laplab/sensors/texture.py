@@ -1,0 +1,347 @@
+"""Top-down texture of a track, sampled by the camera renderer.
+
+The track (centre line and borders, metres) is rasterised once into a class map on a square texel
+grid (``TextureParams.texel_size`` m per texel), coloured like a DeepRacer mat and stored with its
+mip levels (2x2 box averages) so far-away ground can be sampled without aliasing. The room around
+the track is a rectangle ``margin`` metres beyond the track's bounding box: its floor is carpet,
+its four walls carry a panelled texture, and above the walls is a plain sky colour.
+
+Texel (i, j) of level 0 covers world x in ``[x0 + i*t, x0 + (i+1)*t)`` and y in
+``[y0 + j*t, y0 + (j+1)*t)`` with ``t = texel_size``; level L texels are ``2**L`` level-0 texels wide
+and share the same origin, so the level-L index of a point is the level-0 index shifted right by L.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+FLOOR, ROAD, BORDER, CENTER = 0, 1, 2, 3  # texel classes of the class map
+MIN_MIP_SIZE = 4  # stop building mip levels when a side would drop below this many texels
+
+
+def luma601(rgb) -> np.ndarray:
+    """ITU-R BT.601 grey level of RGB uint8 values ``(..., 3)`` -> ``(...)`` uint8 (rounded)."""
+    rgb = np.asarray(rgb, dtype=np.int64)
+    return ((299 * rgb[..., 0] + 587 * rgb[..., 1] + 114 * rgb[..., 2] + 500) // 1000).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class TexturePalette:
+    """Colours (RGB uint8 triples) of the track, floor, walls and sky.
+
+    The defaults imitate the DeepRacer simulator: a near-black asphalt mat, white border tape, a
+    yellow dashed centre line, a grey-green carpet around it, light grey wall panels and a pale sky.
+    ``grain`` is the standard deviation (grey levels) of fixed per-texel noise on road and floor.
+    """
+
+    road: tuple[int, int, int] = (40, 40, 43)
+    border: tuple[int, int, int] = (236, 236, 236)
+    center: tuple[int, int, int] = (238, 192, 40)
+    floor: tuple[int, int, int] = (112, 124, 100)
+    wall: tuple[int, int, int] = (176, 176, 181)
+    wall_seam: tuple[int, int, int] = (118, 118, 124)
+    skirting: tuple[int, int, int] = (84, 84, 88)
+    sky: tuple[int, int, int] = (206, 215, 226)
+    grain: float = 2.0
+
+    def __post_init__(self) -> None:
+        for name in ("road", "border", "center", "floor", "wall", "wall_seam", "skirting", "sky"):
+            value = getattr(self, name)
+            if len(value) != 3 or not all(isinstance(v, (int, np.integer)) and 0 <= v <= 255 for v in value):
+                raise ValueError(f"TexturePalette.{name} must be three integers in 0..255 (RGB), got {value!r}")
+        if not (math.isfinite(self.grain) and self.grain >= 0):
+            raise ValueError(f"TexturePalette.grain must be a finite number >= 0, got {self.grain!r}")
+
+
+@dataclass(frozen=True)
+class TextureParams:
+    """How a track is painted (all lengths in metres).
+
+    ``border_line_width`` white tape lies inside the road along both borders; the centre line is
+    ``center_line_width`` wide, ``dash_length`` on / ``dash_gap`` off along the centre line's arc
+    length. Walls are ``wall_height`` high with a dark seam every ``panel_width`` and a skirting board
+    ``skirting_height`` high. ``seed`` fixes the grain noise.
+    """
+
+    texel_size: float = 0.005
+    margin: float = 1.5
+    border_line_width: float = 0.05
+    center_line_width: float = 0.04
+    dash_length: float = 0.15
+    dash_gap: float = 0.15
+    wall_height: float = 0.8
+    wall_texel_size: float = 0.02
+    panel_width: float = 1.2
+    seam_width: float = 0.04
+    skirting_height: float = 0.06
+    seed: int = 0
+    palette: TexturePalette = field(default_factory=TexturePalette)
+
+    def __post_init__(self) -> None:
+        for name in ("texel_size", "margin", "border_line_width", "center_line_width", "dash_length",
+                     "wall_height", "wall_texel_size", "panel_width"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"TextureParams.{name} must be a positive number of metres, got {value!r}")
+        for name in ("dash_gap", "seam_width", "skirting_height"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"TextureParams.{name} must be a number of metres >= 0, got {value!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class TrackTexture:
+    """A rasterised track with ``V`` colour variants (variant 0 = the palette of the params).
+
+    Every texel the camera can read lives in one flat array per variant, T texels long:
+      [0, wall_offset): the ground's mip levels, level L at ``level_offset[L]``, row-major with
+        ``level_width[L]`` texels per row (row j = y index j).
+      [wall_offset, sky_index): the walls unrolled along the room's perimeter, ``wall_rows`` x
+        ``wall_cols`` texels of ``wall_texel_size`` m (row 0 at the floor; perimeter from the room's
+        (x_min, y_min) corner counter-clockwise).
+      sky_index: one texel, the colour above the walls.
+    gray (V, T) uint8 holds ITU-R 601 grey; rgb (3, V, T) uint8 one plane per colour channel.
+    classes (height, width) uint8 is the level-0 class map (FLOOR, ROAD, BORDER, CENTER).
+    The room is the texture's extent: x in [x0, x0 + width * texel_size], likewise y.
+    """
+
+    x0: float
+    y0: float
+    texel_size: float
+    width: int
+    height: int
+    level_offset: np.ndarray
+    level_width: np.ndarray
+    level_height: np.ndarray
+    wall_offset: int
+    wall_rows: int
+    wall_cols: int
+    wall_texel_size: float
+    wall_height: float
+    sky_index: int
+    gray: np.ndarray
+    rgb: np.ndarray
+    classes: np.ndarray
+    params: TextureParams
+
+    @property
+    def num_variants(self) -> int:
+        return int(self.gray.shape[0])
+
+    @property
+    def num_levels(self) -> int:
+        return int(self.level_offset.shape[0])
+
+    @property
+    def room(self) -> tuple[float, float, float, float]:
+        """(x_min, y_min, x_max, y_max) of the room, m."""
+        return (self.x0, self.y0, self.x0 + self.width * self.texel_size, self.y0 + self.height * self.texel_size)
+
+    def _image(self, start: int, rows: int, cols: int, variant: int, grayscale: bool) -> np.ndarray:
+        if grayscale:
+            return self.gray[variant, start:start + rows * cols].reshape(rows, cols)
+        return np.ascontiguousarray(self.rgb[:, variant, start:start + rows * cols].T.reshape(rows, cols, 3))
+
+    def level_image(self, level: int = 0, variant: int = 0, grayscale: bool = False) -> np.ndarray:
+        """Top-down image of one mip level: (h, w, 3) RGB or (h, w) grey uint8; row j is y index j."""
+        return self._image(int(self.level_offset[level]), int(self.level_height[level]),
+                           int(self.level_width[level]), variant, grayscale)
+
+    def wall_image(self, variant: int = 0, grayscale: bool = False) -> np.ndarray:
+        """The unrolled walls, (wall_rows, wall_cols, 3) RGB or (wall_rows, wall_cols) grey; row 0 at the floor."""
+        return self._image(self.wall_offset, self.wall_rows, self.wall_cols, variant, grayscale)
+
+
+def route_arrays(track) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(centerline, inner, outer), each (N, 2) float64, from a Track-like object or an (N, 6) route."""
+    if all(hasattr(track, name) for name in ("centerline", "inner", "outer")):
+        arrays = [np.asarray(getattr(track, name), dtype=np.float64) for name in ("centerline", "inner", "outer")]
+    else:
+        route = np.asarray(track, dtype=np.float64)
+        if route.ndim != 2 or route.shape[1] != 6 or route.shape[0] < 2:
+            raise ValueError(f"texture: expected a Track or a DeepRacer route array of shape (N, 6) with N >= 2 "
+                             f"[centre x, y | inner x, y | outer x, y], got shape {route.shape}")
+        arrays = [route[:, 0:2], route[:, 2:4], route[:, 4:6]]
+    for name, array in zip(("centerline", "inner", "outer"), arrays):
+        if array.ndim != 2 or array.shape[1] != 2 or array.shape[0] < 2 or not np.isfinite(array).all():
+            raise ValueError(f"texture: track.{name} must be a finite (N, 2) array with N >= 2, got shape "
+                             f"{array.shape}{'' if np.isfinite(array).all() else ' with NaN/Inf values'}")
+    return arrays[0], arrays[1], arrays[2]
+
+
+@njit(cache=True)
+def _fill_even_odd(edges, width, height):
+    """(height, width) uint8 mask of texel centres inside the even-odd union of edge rings.
+
+    edges: (E, 4) float64 [x1, y1, x2, y2] in texel units (texel centre j at j + 0.5).
+    """
+    mask = np.zeros((height, width), dtype=np.uint8)
+    crossings = np.empty(edges.shape[0], dtype=np.float64)
+    for row in range(height):
+        yc = row + 0.5
+        count = 0
+        for e in range(edges.shape[0]):
+            x1, y1, x2, y2 = edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3]
+            if (y1 <= yc < y2) or (y2 <= yc < y1):
+                crossings[count] = x1 + (yc - y1) * (x2 - x1) / (y2 - y1)
+                count += 1
+        xs = np.sort(crossings[:count])
+        for p in range(0, count - 1, 2):
+            start = max(int(math.ceil(xs[p] - 0.5)), 0)
+            stop = min(int(math.ceil(xs[p + 1] - 0.5)), width)
+            for col in range(start, stop):
+                mask[row, col] = 1
+    return mask
+
+
+@njit(cache=True)
+def _nearest_on_polyline(points, radius, width, height, dist, arc):
+    """Lower ``dist`` (texel units) and set ``arc`` (arc length, texel units) of texels within
+    ``radius`` of the polyline ``points`` (M, 2) in texel units, where the polyline is nearer."""
+    s0 = 0.0
+    for i in range(points.shape[0] - 1):
+        ax, ay, bx, by = points[i, 0], points[i, 1], points[i + 1, 0], points[i + 1, 1]
+        dx, dy = bx - ax, by - ay
+        seg_sq = dx * dx + dy * dy
+        seg_len = math.sqrt(seg_sq)
+        c0 = max(int(min(ax, bx) - radius), 0)
+        c1 = min(int(max(ax, bx) + radius) + 1, width)
+        r0 = max(int(min(ay, by) - radius), 0)
+        r1 = min(int(max(ay, by) + radius) + 1, height)
+        for row in range(r0, r1):
+            py = row + 0.5
+            for col in range(c0, c1):
+                px = col + 0.5
+                t = 0.0 if seg_sq == 0.0 else min(max(((px - ax) * dx + (py - ay) * dy) / seg_sq, 0.0), 1.0)
+                ex, ey = px - (ax + t * dx), py - (ay + t * dy)
+                d = math.sqrt(ex * ex + ey * ey)
+                if d < dist[row, col]:
+                    dist[row, col] = d
+                    arc[row, col] = s0 + t * seg_len
+        s0 += seg_len
+
+
+def _ring_edges(points: np.ndarray) -> np.ndarray:
+    closed = points if np.array_equal(points[0], points[-1]) else np.vstack([points, points[:1]])
+    return np.hstack([closed[:-1], closed[1:]])
+
+
+def rasterise_track_classes(track, params: TextureParams) -> tuple[np.ndarray, float, float]:
+    """Class map (height, width) uint8 of the room around ``track`` and its origin (x0, y0), m."""
+    centre, inner, outer = route_arrays(track)
+    res = params.texel_size
+    everything = np.vstack([centre, inner, outer])
+    lo = np.floor((everything.min(axis=0) - params.margin) / res + 1e-9) * res
+    hi = np.ceil((everything.max(axis=0) + params.margin) / res - 1e-9) * res
+    width, height = int(round((hi[0] - lo[0]) / res)), int(round((hi[1] - lo[1]) / res))
+    if width * height > 64_000_000:
+        raise ValueError(f"texture: the room around the track is {width} x {height} texels at texel_size={res} m; "
+                         f"that is too large, raise TextureParams.texel_size")
+    to_texels = lambda points: np.ascontiguousarray((points - lo) / res)
+    closed = np.allclose(centre[0], centre[-1])
+    if closed:
+        edges = np.vstack([_ring_edges(to_texels(inner)), _ring_edges(to_texels(outer))])
+    else:  # an open strip: one ring along the inner border and back along the outer one
+        edges = _ring_edges(to_texels(np.vstack([inner, outer[::-1]])))
+    road = _fill_even_odd(edges, width, height).astype(bool)
+
+    border_dist = np.full((height, width), np.inf, dtype=np.float64)
+    scratch = np.zeros((height, width), dtype=np.float64)
+    radius = params.border_line_width / res
+    for border in (inner, outer):
+        _nearest_on_polyline(to_texels(border), radius + 1.0, width, height, border_dist, scratch)
+    center_dist = np.full((height, width), np.inf, dtype=np.float64)
+    center_arc = np.zeros((height, width), dtype=np.float64)
+    _nearest_on_polyline(to_texels(centre), params.center_line_width / res, width, height, center_dist, center_arc)
+
+    classes = np.full((height, width), FLOOR, dtype=np.uint8)
+    classes[road] = ROAD
+    period = (params.dash_length + params.dash_gap) / res
+    dashes = (center_dist < 0.5 * params.center_line_width / res) & (np.mod(center_arc, period) < params.dash_length / res)
+    classes[road & dashes] = CENTER
+    classes[road & (border_dist < radius)] = BORDER
+    return classes, float(lo[0]), float(lo[1])
+
+
+def _box_halve(image: np.ndarray) -> np.ndarray:
+    """2x2 box average (rounded) of an (h, w, ...) uint8 image, edge-padded to even size."""
+    h, w = image.shape[:2]
+    padded = np.pad(image, ((0, h % 2), (0, w % 2)) + ((0, 0),) * (image.ndim - 2), mode="edge").astype(np.uint16)
+    total = padded[0::2, 0::2] + padded[1::2, 0::2] + padded[0::2, 1::2] + padded[1::2, 1::2]
+    return ((total + 2) // 4).astype(np.uint8)
+
+
+def _mip_chain(image: np.ndarray) -> list[np.ndarray]:
+    levels = [image]
+    while min(levels[-1].shape[:2]) // 2 >= MIN_MIP_SIZE:
+        levels.append(_box_halve(levels[-1]))
+    return levels
+
+
+def _paint_ground(classes: np.ndarray, palette: TexturePalette, seed: int) -> np.ndarray:
+    lut = np.array([palette.floor, palette.road, palette.border, palette.center], dtype=np.float64)
+    rgb = lut[classes]
+    if palette.grain > 0:
+        noise = np.random.default_rng(seed).normal(0.0, palette.grain, size=classes.shape)
+        plain = (classes == FLOOR) | (classes == ROAD)
+        rgb += np.where(plain, noise, 0.0)[..., None]
+    return np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+
+
+def _paint_walls(params: TextureParams, palette: TexturePalette, perimeter: float) -> np.ndarray:
+    res = params.wall_texel_size
+    rows, cols = max(int(round(params.wall_height / res)), 1), max(int(math.ceil(perimeter / res)), 1)
+    z = (np.arange(rows) + 0.5) * res
+    p = (np.arange(cols) + 0.5) * res
+    base = np.array(palette.wall, dtype=np.float64)
+    # A gentle vertical gradient and alternating panel tones give the wall visible structure.
+    shade = 1.0 + 0.10 * (z / params.wall_height - 0.5)
+    panel_tone = np.where(np.floor(p / params.panel_width) % 2 == 0, 1.0, 0.94)
+    rgb = base[None, None, :] * shade[:, None, None] * panel_tone[None, :, None]
+    seam = np.abs((p + 0.5 * params.seam_width) % params.panel_width - 0.5 * params.seam_width) < 0.5 * params.seam_width
+    rgb[:, seam] = palette.wall_seam
+    rgb[z < params.skirting_height] = palette.skirting
+    return np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+
+
+def build_track_texture(track, params: TextureParams = TextureParams(),
+                        extra_palettes: tuple[TexturePalette, ...] = ()) -> TrackTexture:
+    """Rasterise ``track`` (a Track or an (N, 6) route) into a :class:`TrackTexture`.
+
+    Variant 0 uses ``params.palette``; each of ``extra_palettes`` adds a variant with the same
+    geometry (for domain randomisation). Costs about a second for a DeepRacer track at 1 cm.
+    """
+    if not isinstance(params, TextureParams):
+        raise TypeError(f"build_track_texture: params must be a TextureParams, got {type(params).__name__}")
+    classes, x0, y0 = rasterise_track_classes(track, params)
+    height, width = classes.shape
+    perimeter = 2.0 * (width + height) * params.texel_size
+    palettes = (params.palette,) + tuple(extra_palettes)
+    gray_v, rgb_v = [], []
+    for index, palette in enumerate(palettes):
+        rgb0 = _paint_ground(classes, palette, params.seed + index)
+        rgb_levels = _mip_chain(rgb0)
+        gray_levels = _mip_chain(luma601(rgb0))
+        wall = _paint_walls(params, palette, perimeter)
+        sky = np.array(palette.sky, dtype=np.uint8)
+        rgb_v.append(np.concatenate([level.reshape(-1, 3) for level in rgb_levels] + [wall.reshape(-1, 3), sky[None]]).T)
+        gray_v.append(np.concatenate([level.reshape(-1) for level in gray_levels] + [luma601(wall).reshape(-1),
+                                                                                     luma601(sky)[None]]))
+    sizes = np.array([level.shape[:2] for level in gray_levels], dtype=np.int64)  # (L, 2) rows, cols
+    texels = sizes[:, 0] * sizes[:, 1]
+    level_offset = np.concatenate([[0], np.cumsum(texels)[:-1]]).astype(np.int64)
+    wall_offset = int(texels.sum())
+    if wall_offset + wall.shape[0] * wall.shape[1] + 1 >= 2**31:
+        raise ValueError(f"texture: {wall_offset} texels do not fit 32-bit indices; raise TextureParams.texel_size")
+    return TrackTexture(
+        x0=x0, y0=y0, texel_size=float(params.texel_size), width=int(width), height=int(height),
+        level_offset=level_offset, level_width=np.ascontiguousarray(sizes[:, 1]),
+        level_height=np.ascontiguousarray(sizes[:, 0]), wall_offset=wall_offset, wall_rows=int(wall.shape[0]),
+        wall_cols=int(wall.shape[1]), wall_texel_size=float(params.wall_texel_size),
+        wall_height=float(wall.shape[0] * params.wall_texel_size),
+        sky_index=wall_offset + int(wall.shape[0] * wall.shape[1]),
+        gray=np.stack(gray_v), rgb=np.ascontiguousarray(np.stack(rgb_v, axis=1)), classes=classes, params=params)
