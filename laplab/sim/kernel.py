@@ -14,7 +14,7 @@ import numpy as np
 
 from laplab.sensors.state_vector import write_state_vector
 from laplab.sim.state import (IMMOBILIZED, IN_PROGRESS, LAP_COMPLETE, OFF_TRACK, REVERSED, TIME_UP)
-from laplab.track.projection import point_on_track, project_point
+from laplab.track.projection import point_on_road_near, project_point
 from laplab.vehicle.dynamics import advance_car
 
 PARALLEL_THRESHOLD = 32  # cars; below it the serial loop is faster
@@ -57,7 +57,7 @@ def _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count,
     wheels = 0
     for fx, fy in ((wheelbase, half_track), (wheelbase, -half_track), (0.0, half_track), (0.0, -half_track)):
         wx, wy = x + c * fx - s * fy, y + s * fx + c * fy
-        if point_on_track(wx, wy, segments, arc_length, left_w, right_w, far_gap, window, seg):
+        if point_on_road_near(wx, wy, geo, seg):
             wheels += 1
     st.wheels_on[i] = wheels
 

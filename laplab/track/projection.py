@@ -29,6 +29,9 @@ class TrackArrays(NamedTuple):
     segments: np.ndarray  # (N-1, 5) per segment: start x, start y, dx, dy, 1 / length^2
     far_gap: np.ndarray  # (N-1,) distance from each segment to the nearest segment >= FAR_ARC away along the loop, m
     window: np.ndarray  # (N-1, 2) int64: segments searched before / after a hint (covering 2 x FAR_ARC of arc)
+    left_border: np.ndarray  # (L, 5) the left border's segments (driving direction), as ``segments``
+    right_border: np.ndarray  # (R, 5) the right border's segments
+    border_anchor: np.ndarray  # (N-1, 2) int64: left / right border segment nearest each centre segment
 
 
 class Projection(NamedTuple):
@@ -47,8 +50,29 @@ def track_arrays(track: Track) -> TrackArrays:
     len_sq = (d * d).sum(axis=1)
     inv = np.where(len_sq > 1e-18, 1.0 / np.maximum(len_sq, 1e-18), 0.0)
     segments = np.ascontiguousarray(np.column_stack([c[:-1], d, inv]))
+    left, right = (track.inner, track.outer) if track.is_ccw else (track.outer, track.inner)
+    mid = 0.5 * (c[:-1] + c[1:])
+    anchor = np.stack([_nearest_segment(mid, left), _nearest_segment(mid, right)], axis=1)
     return TrackArrays(track.centerline, track.arc_length, track.left_width, track.right_width,
-                       track.road_width, track.length, segments, *_far_segment_gap(c, track.arc_length))
+                       track.road_width, track.length, segments, *_far_segment_gap(c, track.arc_length),
+                       _segment_table(left), _segment_table(right), anchor.astype(np.int64))
+
+
+def _segment_table(polyline: np.ndarray) -> np.ndarray:
+    """(M-1, 5) start x, start y, dx, dy, 1/length^2 (0 for zero-length segments) of a polyline."""
+    d = np.diff(polyline, axis=0)
+    len_sq = (d * d).sum(axis=1)
+    inv = np.where(len_sq > 1e-18, 1.0 / np.maximum(len_sq, 1e-18), 0.0)
+    return np.ascontiguousarray(np.column_stack([polyline[:-1], d, inv]))
+
+
+def _nearest_segment(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
+    """(P,) index of the segment of ``polyline`` nearest each point."""
+    a, seg = polyline[:-1], np.diff(polyline, axis=0)
+    rel = points[:, None, :] - a[None]
+    t = np.clip((rel * seg[None]).sum(-1) / np.maximum((seg * seg).sum(-1), 1e-18)[None], 0.0, 1.0)
+    diff = rel - t[..., None] * seg[None]
+    return np.argmin((diff * diff).sum(-1), axis=1)
 
 
 def _arc_separation(arc_length: np.ndarray) -> np.ndarray:
@@ -157,18 +181,55 @@ def project_point(px, py, segments, arc_length, far_gap, window, hint):
     return best_i, best_t, s, lateral, dist
 
 
+BORDER_WINDOW = 4  # border segments searched either side of the anchor
+
+
 @nb.njit(cache=True, inline="always")
-def interpolate_at_segment(values, segment, t):
-    return values[segment] + t * (values[segment + 1] - values[segment])
+def _inside_of_border(px, py, border, anchor, road_on_left):
+    """True when the point is on the road side of the nearest segment of ``border`` near ``anchor``.
+
+    The road lies to the left of the border (``road_on_left``) or to its right. Where the nearest point
+    is a vertex, the adjacent segment with the larger perpendicular offset decides (the two agree
+    unless the point is on the vertex's bisector, where either answer is as good).
+    """
+    m = border.shape[0]
+    best_d2, best_cross, best_abs = np.inf, 0.0, -1.0
+    for k in range(-BORDER_WINDOW, BORDER_WINDOW + 1):
+        j = (anchor + k) % m
+        inv = border[j, 4]
+        if inv == 0.0:
+            continue
+        ax, ay, dx, dy = border[j, 0], border[j, 1], border[j, 2], border[j, 3]
+        t = min(max(((px - ax) * dx + (py - ay) * dy) * inv, 0.0), 1.0)
+        qx, qy = ax + t * dx - px, ay + t * dy - py
+        d2 = qx * qx + qy * qy
+        cross = (dx * (py - ay) - dy * (px - ax)) * np.sqrt(inv)  # signed distance to the segment's line
+        if d2 < best_d2 - 1e-15 or (d2 <= best_d2 + 1e-15 and abs(cross) > best_abs):
+            best_d2, best_cross, best_abs = d2, cross, abs(cross)
+    return best_cross >= 0.0 if road_on_left else best_cross <= 0.0
 
 
 @nb.njit(cache=True)
-def point_on_track(px, py, segments, arc_length, left_width, right_width, far_gap, window, hint):
-    """True when the point lies between the borders (lateral offset within the local widths)."""
-    seg, t, _, lateral, _ = project_point(px, py, segments, arc_length, far_gap, window, hint)
+def point_on_track(px, py, geo, hint):
+    """True when the point lies on the drivable area between the borders.
+
+    The centre-line projection tells on which side the point lies; the point is then tested against
+    that side's border polyline itself (so coarse waypoints do not move the border). ``geo`` is a
+    :class:`TrackArrays`.
+    """
+    seg, _, _, lateral, _ = project_point(px, py, geo.segments, geo.arc_length, geo.far_gap, geo.window, hint)
     if lateral >= 0.0:
-        return lateral <= interpolate_at_segment(left_width, seg, t)
-    return -lateral <= interpolate_at_segment(right_width, seg, t)
+        return _inside_of_border(px, py, geo.left_border, geo.border_anchor[seg, 0], False)
+    return _inside_of_border(px, py, geo.right_border, geo.border_anchor[seg, 1], True)
+
+
+@nb.njit(cache=True)
+def point_on_road_near(px, py, geo, segment):
+    """True when the point is on the road next to centre segment ``segment``: on the road side of both
+    borders there (each searched within BORDER_WINDOW of its anchor). For points near a car whose
+    reference point projects on ``segment`` (its wheels): no projection needed."""
+    return (_inside_of_border(px, py, geo.left_border, geo.border_anchor[segment, 0], False)
+            and _inside_of_border(px, py, geo.right_border, geo.border_anchor[segment, 1], True))
 
 
 PARALLEL_MIN_POINTS = 512  # below this, starting numba's thread pool costs more than it saves
@@ -181,10 +242,9 @@ def _project_loop(points, segments, arc_length, far_gap, window, hints, seg_out,
         seg_out[j], s_out[j], lat_out[j], dist_out[j] = seg, s, lat, dist
 
 
-def _on_track_loop(points, segments, arc_length, left_width, right_width, far_gap, window, hints, out):
+def _on_track_loop(points, geo, hints, out):
     for j in nb.prange(points.shape[0]):
-        out[j] = point_on_track(points[j, 0], points[j, 1], segments, arc_length, left_width,
-                                right_width, far_gap, window, hints[j])
+        out[j] = point_on_track(points[j, 0], points[j, 1], geo, hints[j])
 
 
 # Each loop compiled twice: serial for small batches, parallel for large ones.
@@ -222,8 +282,7 @@ def points_on_track(arrays: TrackArrays, points, hints=None) -> np.ndarray:
     pts = _as_points(points)
     out = np.empty(pts.shape[0], dtype=np.bool_)
     loop = _on_track_parallel if pts.shape[0] >= PARALLEL_MIN_POINTS else _on_track_serial
-    loop(pts, arrays.segments, arrays.arc_length, arrays.left_width, arrays.right_width,
-                   arrays.far_gap, arrays.window, _as_hints(hints, pts.shape[0]), out)
+    loop(pts, arrays, _as_hints(hints, pts.shape[0]), out)
     return out
 
 
