@@ -207,6 +207,20 @@ class Trainer:
             append(reward_score=b.total_reward, start_time=np.zeros(len(b.status)), metric_time=b.duration,
                    completion_percentage=b.progress, episode_status=b.status_names())
 
+    @property
+    def iterations_log(self):
+        """laplab's per-iteration log (losses, entropy, rates), beside DeepRacer's metrics."""
+        return self.folder.metrics_dir / "laplab-iterations.json"
+
+    def _log_iteration(self, report: IterationReport) -> None:
+        from dataclasses import asdict
+
+        from laplab.store.atomic import atomic_write_json, read_json
+        path = self.iterations_log
+        rows = [r for r in (read_json(path)["iterations"] if path.exists() else []) if r["iteration"] < report.iteration]
+        rows.append(asdict(report))
+        atomic_write_json(path, {"iterations": rows}, indent=None)
+
     def _save_checkpoint(self, eval_progress: float) -> None:
         payload = checkpoint_bytes(self.learner, self.iteration, self.env_steps, self.episodes, self.best_lap)
         self.checkpoints.save(payload, iteration=self.iteration, steps=self.env_steps, metric=eval_progress)
@@ -275,6 +289,7 @@ class Trainer:
                 best_lap_time=self.best_lap, eval_lap_time=float(eval_laps.mean()) if eval_laps.size else None,
                 steps_per_second=(batch.env_steps + evaluation.env_steps) / max(wall, 1e-9),
                 elapsed_s=elapsed, time_left_s=max(cfg.max_time_s - elapsed, 0.0), losses=losses)
+            self._log_iteration(report)
             for callback in callbacks:
                 callback(report)
             if batch.total_reward.mean() >= hp.term_cond_avg_score:
