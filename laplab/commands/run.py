@@ -22,7 +22,7 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from laplab.cli import UserError
     from laplab.env.vector import DEFAULT_REWARD, resolve_reward_function
-    from laplab.reward.params import ParamsBuilder
+    from laplab.reward.params import ParamsBuilder, rewards_for
     from laplab.sim.pure_pursuit import PurePursuit, PurePursuitParams
     from laplab.sim.simulator import Simulator
     from laplab.sim.state import IN_PROGRESS, STATUS_NAMES
@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     while (sim.state.status == IN_PROGRESS).any():
         steer, speed = policy.act(sim.poses(), sim.state.speed)
         cars = np.flatnonzero(sim.step(steer, speed))
-        total_reward[cars] += [reward_fn(p) for p in params.build(cars)]
+        total_reward[cars] += rewards_for(params, reward_fn, cars)[0]
     st = sim.state
     table = Table(title=f"built-in pure-pursuit policy on {track.name} ({track.length:.2f} m, "
                         f"{track.nominal_width:.3f} m wide) at {args.speed} m/s")

@@ -12,7 +12,7 @@ from gymnasium.vector import AutoresetMode
 
 from laplab.env.metadata import ModelMetadata, load_model_metadata, metadata_from_dict
 from laplab.env.observations import ObservationBuilder
-from laplab.reward.params import ParamsBuilder
+from laplab.reward.params import ParamsBuilder, rewards_for
 from laplab.sim.simulator import Simulator
 from laplab.sim.state import IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES, TIME_UP, EpisodeParams
 from laplab.track.geometry import Track
@@ -108,9 +108,7 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
         rewards[:] = 0.0
         params_list = None
         if self.reward_fn is not None and cars.size:
-            params = self._params.build(cars)
-            fn = self.reward_fn
-            rewards[cars] = [fn(p) for p in params]
+            rewards[cars], params = rewards_for(self._params, self.reward_fn, cars, keep=self.keep_params)
             if self.keep_params:
                 params_list = [None] * self.num_envs
                 for car, p in zip(cars.tolist(), params):

@@ -80,6 +80,21 @@ class RewardFunction:
             raise self._return_error(value, params, why_invalid) from None
         return reward
 
+    def call_fresh(self, params: dict) -> float:
+        """:meth:`__call__` for a params dict built for this call alone, with its own ``waypoints``
+        list of tuples (as :class:`laplab.reward.params.ParamsBuilder` makes them): skips the
+        defensive copy, which costs more than a typical reward function."""
+        if self.is_legacy:
+            return self(params)
+        try:
+            value = self.function(params)
+        except (Exception, SystemExit) as exc:
+            raise self._raised_error(exc, params) from exc
+        reward, why_invalid = _checked_reward(value)
+        if why_invalid:
+            raise self._return_error(value, params, why_invalid) from None
+        return reward
+
     def __repr__(self) -> str:
         kind = "2018 signature" if self.is_legacy else "params dict"
         return f"RewardFunction({self.path!r}, name={self.name!r}, {kind})"

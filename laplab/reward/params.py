@@ -8,7 +8,10 @@ next call, without copying the coordinates themselves each step.
 
 from __future__ import annotations
 
+import gc
 import math
+from contextlib import contextmanager
+from typing import Callable
 
 import numpy as np
 
@@ -66,6 +69,37 @@ class ParamsBuilder:
 
 def _interp(values: np.ndarray, seg: np.ndarray, t: np.ndarray) -> np.ndarray:
     return values[seg] + t * (values[seg + 1] - values[seg])
+
+
+@contextmanager
+def gc_paused():
+    """Pause the cyclic garbage collector for a batch of params dicts and reward calls.
+
+    A step builds a thousand short-lived dicts and lists; each allocation burst would trigger collections
+    that walk the whole heap (7x slower per dict with torch loaded). Reference counting frees them
+    all the same; cycles a reward function makes are collected once the collector resumes.
+    """
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
+def rewards_for(builder: ParamsBuilder, reward_fn: Callable[[dict], float], cars: np.ndarray,
+                keep: bool = False) -> tuple[list[float], list[dict] | None]:
+    """Call ``reward_fn`` once per car in ``cars`` with a fresh params dict; returns the rewards and,
+    when ``keep``, the dicts."""
+    # The builder's dicts are fresh, so the reward function may have them without a defensive copy,
+    # unless they are kept for the caller (info["params"]), which must not see the function's mutations.
+    call = reward_fn if keep else getattr(reward_fn, "call_fresh", reward_fn)
+    with gc_paused():
+        params = builder.build(cars)
+        rewards = [call(p) for p in params]
+    return rewards, (params if keep else None)
+
 
 
 def heading_deg(yaw_rad: float) -> float:

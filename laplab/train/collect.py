@@ -15,7 +15,7 @@ import numpy as np
 
 from laplab.env.action_space import ActionSpace
 from laplab.env.observations import ObservationBuilder
-from laplab.reward.params import ParamsBuilder
+from laplab.reward.params import ParamsBuilder, rewards_for
 from laplab.sim.simulator import Simulator
 from laplab.sim.state import IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES, TIME_UP
 
@@ -108,7 +108,7 @@ def collect_episodes(sim: Simulator, observations: ObservationBuilder, params: P
         cars = np.flatnonzero(stepped)
         reward = np.zeros(num)
         if reward_fn is not None and cars.size:
-            reward[cars] = [reward_fn(p) for p in params.build(cars)]
+            reward[cars] = rewards_for(params, reward_fn, cars)[0]
         total += reward
         status = st.status
         done = stepped & (status != IN_PROGRESS)
