@@ -22,11 +22,19 @@ class ObservationBuilder:
     """Builds the observation of the cars of a :class:`Simulator` for the sensors of a model.
 
     ``seed`` seeds the sensor noise (lidar's Gaussian noise); ``sensor_noise=False`` gives exact
-    readings (evaluation of a deterministic policy, tests).
+    readings (evaluation of a deterministic policy, tests). ``stack_size`` (DeepRacer's hyperparameter)
+    stacks that many consecutive camera frames as channels, newest last.
+
+    Camera observations are ``(C, 120, 160)`` uint8, channels first: C = cameras x stack_size
+    (stereo: left, right per frame).
     """
 
-    def __init__(self, sim: Simulator, metadata: ModelMetadata, seed: int | None = None, sensor_noise: bool = True):
+    def __init__(self, sim: Simulator, metadata: ModelMetadata, seed: int | None = None, sensor_noise: bool = True,
+                 stack_size: int = 1):
+        if int(stack_size) < 1:
+            raise ValueError(f"stack_size must be >= 1, got {stack_size!r}")
         self.sim = sim
+        self.stack_size = int(stack_size)
         self.sensors = metadata.sensors
         self.rng = np.random.default_rng(seed) if sensor_noise else None
         self._parts: dict[str, tuple[gym.spaces.Box, Reader]] = {}
@@ -55,7 +63,31 @@ class ObservationBuilder:
         return box, read
 
     def _camera_part(self, sensor: str) -> tuple[gym.spaces.Box, Reader]:
-        raise NotImplementedError(f"the {sensor} sensor is not available in this build of laplab yet")
+        from laplab.sensors.camera import camera_for_sensor, render_cameras
+        from laplab.sensors.texture import build_track_texture
+        cameras = camera_for_sensor(sensor)
+        texture = build_track_texture(self.sim.track)
+        height, width, per_frame = cameras[0].height, cameras[0].width, len(cameras)
+        channels = per_frame * self.stack_size
+        box = gym.spaces.Box(0, 255, shape=(channels, height, width), dtype=np.uint8)
+        st, poses = self.sim.state, self.sim.poses
+        stack = np.zeros((self.sim.num_cars, channels, height, width), dtype=np.uint8)
+        seen = np.full((self.sim.num_cars, 2), -1, dtype=np.int64)  # (episode, steps) of the newest frame
+
+        def read(cars: np.ndarray) -> np.ndarray:
+            now = np.stack([st.episode[cars], st.steps[cars]], axis=1)
+            fresh = (now != seen[cars]).any(axis=1)
+            if fresh.any():
+                update = cars[fresh]
+                frames = render_cameras(texture, poses()[update], cameras).transpose(0, 3, 1, 2)
+                new_episode = st.episode[update] != seen[update, 0]
+                if self.stack_size > 1:
+                    stack[update[~new_episode], :-per_frame] = stack[update[~new_episode], per_frame:]
+                    stack[update[new_episode]] = np.tile(frames[new_episode], (1, self.stack_size, 1, 1))
+                stack[update, -per_frame:] = frames
+                seen[update] = now[fresh]
+            return stack[cars]
+        return box, read
 
     def observe(self, cars: np.ndarray | slice = slice(None)):
         """Observations of the selected cars: an array (or a dict of arrays) with a leading car axis."""
