@@ -25,7 +25,8 @@ class TimeTrialEnv(gym.Env):
     ``Box(-1, 1, (2,))`` (steering, speed) scaled to its continuous ranges.
 
     Observation space: the model's sensors; ``STATE`` by default, a float32 vector described in
-    :mod:`laplab.sensors.state_vector`.
+    :mod:`laplab.sensors.state_vector`. Cameras give ``(C, 120, 160)`` uint8 grey frames, channels
+    first (C = cameras x ``stack_size``); several sensors give a Dict keyed by sensor name.
 
     Rewards: ``reward_function(params)`` on a fresh DeepRacer params dict each step (default:
     DeepRacer's follow-the-centre-line example; ``None``: reward 0).
@@ -45,14 +46,14 @@ class TimeTrialEnv(gym.Env):
 
     def __init__(self, track: Track | str = DEFAULT_TRACK, reward_function: RewardSpec = DEFAULT_REWARD,
                  model_metadata: ModelMetadata | dict | str | None = None, vehicle: VehicleParams = DEEPRACER,
-                 episode: EpisodeParams = EpisodeParams()):
+                 episode: EpisodeParams = EpisodeParams(), stack_size: int = 1, seed: int | None = None):
         self.model_metadata = resolve_metadata(model_metadata)
         self.track = track if isinstance(track, Track) else load_track(track)
         self.sim = Simulator(self.track, 1, vehicle, episode)
         self.action_spec = self.model_metadata.action_space
         self.reward_fn = resolve_reward_function(reward_function, self.action_spec.max_speed)
         self._params = ParamsBuilder(self.sim)
-        self._observations = ObservationBuilder(self.sim, self.model_metadata)
+        self._observations = ObservationBuilder(self.sim, self.model_metadata, seed=seed, stack_size=stack_size)
         self.observation_space = self._observations.single_space
         self.action_space = self.action_spec.gym_space()
 

@@ -53,6 +53,8 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
 
     Observation space: the sensors of model_metadata.json (``STATE`` by default: see
     :mod:`laplab.sensors.state_vector`); one sensor gives a Box, several a Dict keyed by sensor name.
+    Cameras give ``(C, 120, 160)`` uint8 grey frames, channels first (C = cameras x ``stack_size``);
+    lidars their DeepRacer vector (:mod:`laplab.sensors.lidar`).
 
     Rewards: the user's ``reward_function(params)`` called once per car and step with a fresh params
     dict (``None``: no reward function, reward 0; default: DeepRacer's follow-the-centre-line example).
@@ -74,7 +76,8 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
 
     def __init__(self, num_envs: int = 16, track: Track | str = DEFAULT_TRACK, reward_function: RewardSpec = DEFAULT_REWARD,
                  model_metadata: ModelMetadata | dict | str | None = None, vehicle: VehicleParams = DEEPRACER,
-                 episode: EpisodeParams = EpisodeParams(), keep_params: bool = True):
+                 episode: EpisodeParams = EpisodeParams(), keep_params: bool = True, stack_size: int = 1,
+                 seed: int | None = None):
         self.model_metadata = resolve_metadata(model_metadata)
         self.track = track if isinstance(track, Track) else load_track(track)
         self.sim = Simulator(self.track, num_envs, vehicle, episode)
@@ -83,7 +86,7 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
         self.reward_fn = resolve_reward_function(reward_function, self.action_spec.max_speed)
         self.keep_params = keep_params
         self._params = ParamsBuilder(self.sim)
-        self._observations = ObservationBuilder(self.sim, self.model_metadata)
+        self._observations = ObservationBuilder(self.sim, self.model_metadata, seed=seed, stack_size=stack_size)
         self.single_observation_space = self._observations.single_space
         self.single_action_space = self.action_spec.gym_space()
         self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, self.num_envs)

@@ -57,7 +57,7 @@ def load_model_policy(name: str, checkpoint: str = "best", seed: int = 0) -> Mod
     state = load_checkpoint(path)
     metadata = config.metadata()
     sim = Simulator(load_track(config.track), 1, vehicle_preset(config.vehicle))
-    space = ObservationBuilder(sim, metadata).single_space
+    space = ObservationBuilder(sim, metadata, stack_size=config.hyper().stack_size).single_space
     learner = build_learner(config, space, seed)
     learner.load_state_dict(state["learner"])
     return ModelPolicy(name, folder, config, metadata, path.name, learner, space)

@@ -116,8 +116,9 @@ class Trainer:
         self.sim = Simulator(track, episodes, vehicle, config.episode_params())
         self.eval_sim = Simulator(track, config.eval_episodes, vehicle,
                                   EpisodeParams(round_robin_advance=0.0, reverse=config.reverse))
-        self.observations = ObservationBuilder(self.sim, self.metadata)
-        self.eval_observations = ObservationBuilder(self.eval_sim, self.metadata)
+        stack = self.hp.stack_size
+        self.observations = ObservationBuilder(self.sim, self.metadata, seed=config.seed, stack_size=stack)
+        self.eval_observations = ObservationBuilder(self.eval_sim, self.metadata, seed=config.seed + 1, stack_size=stack)
         self.params = ParamsBuilder(self.sim)
         self.eval_params = ParamsBuilder(self.eval_sim)
         self.learner = build_learner(config, self.observations.single_space, config.seed)
