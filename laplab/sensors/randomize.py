@@ -17,9 +17,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit, prange
 
 from laplab.sensors.camera import CameraParams, FRONT_FACING_CAMERA, render_camera
 from laplab.sensors.texture import TextureParams, TexturePalette, TrackTexture, build_track_texture
@@ -134,25 +136,59 @@ def jitter_poses(poses: np.ndarray, draw: FrameRandomization) -> np.ndarray:
                             poses[:, 1] + s * draw.offset_x + c * draw.offset_y, poses[:, 2] + draw.yaw])
 
 
+NOISE_BANK_SIZE = 1 << 21  # standard normals shared by all frames, each from a random offset (a power of 2)
+
+
+@lru_cache(maxsize=1)
+def _noise_bank() -> np.ndarray:
+    return np.random.default_rng(20240518).standard_normal(NOISE_BANK_SIZE, dtype=np.float32)
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def _photometric_kernel(src, chans, row_shift, blur, lut, noise, bank, bank_offset, out):
+    """out[n] = noise + lut[n][blurred(src[n] shifted up by row_shift[n] rows)].
+
+    src, out: (N, H, W * chans) uint8 (channels interleaved along the last axis).
+    """
+    n_cars, height, span = src.shape
+    for n in prange(n_cars):
+        sums = np.empty(span, dtype=np.float32)  # 3-row sums of the current row
+        keep, share = np.float32(1.0 - blur[n]), np.float32(blur[n] / 9.0)
+        for r in range(height):
+            centre = min(max(r + row_shift[n], 0), height - 1)
+            row = src[n, centre]
+            if blur[n] > 0:
+                above, below = src[n, max(centre - 1, 0)], src[n, min(centre + 1, height - 1)]
+                for j in range(span):
+                    sums[j] = np.float32(above[j]) + np.float32(row[j]) + np.float32(below[j])
+            base = bank_offset[n] + r * span
+            for j in range(span):
+                value = np.float32(row[j])
+                if blur[n] > 0:
+                    left = j - chans if j >= chans else j  # the edge pixel repeats
+                    right = j + chans if j + chans < span else j
+                    value = keep * value + share * (sums[left] + sums[j] + sums[right])
+                grey = lut[n, np.int64(value + np.float32(0.5))] + noise[n] * bank[(base + j) & (NOISE_BANK_SIZE - 1)]
+                out[n, r, j] = np.uint8(min(max(grey + np.float32(0.5), np.float32(0.0)), np.float32(255.0)))
+
+
 def apply_photometric(frames: np.ndarray, draw: FrameRandomization, rng: np.random.Generator) -> np.ndarray:
     """Pitch shift, blur, brightness / contrast / gamma and noise on (N, H, W[, C]) uint8 frames.
 
-    Returns a new uint8 array of the same shape; noise is drawn from ``rng``.
+    Returns a new uint8 array of the same shape; where the noise pattern starts is drawn from ``rng``.
     """
-    n, height = frames.shape[0], frames.shape[1]
-    lead = (n,) + (1,) * (frames.ndim - 1)
-    rows = np.clip(np.arange(height)[None, :] + draw.row_shift[:, None], 0, height - 1)
-    image = frames[np.arange(n)[:, None], rows].astype(np.float32)  # edge rows repeat at the border
-    if np.any(draw.blur > 0):
-        padded = np.pad(image, ((0, 0), (1, 1), (1, 1)) + ((0, 0),) * (frames.ndim - 3), mode="edge")
-        box = sum(padded[:, i:i + height, j:j + frames.shape[2]] for i in range(3) for j in range(3)) / 9.0
-        image += draw.blur.reshape(lead).astype(np.float32) * (box - image)
-    x = np.clip(image / 255.0, 0.0, 1.0)
-    x = np.clip((x - 0.5) * draw.contrast.reshape(lead) + 0.5 + draw.brightness.reshape(lead) / 255.0, 0.0, 1.0)
-    image = 255.0 * x ** draw.gamma.reshape(lead)
-    if np.any(draw.noise > 0):
-        image += rng.standard_normal(image.shape, dtype=np.float32) * draw.noise.reshape(lead).astype(np.float32)
-    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    frames = np.ascontiguousarray(frames, dtype=np.uint8)
+    n = frames.shape[0]
+    levels = np.arange(256, dtype=np.float64) / 255.0
+    stretched = np.clip((levels[None, :] - 0.5) * draw.contrast[:, None] + 0.5 + draw.brightness[:, None] / 255.0,
+                        0.0, 1.0)
+    lut = (255.0 * stretched ** draw.gamma[:, None]).astype(np.float32)
+    chans = int(np.prod(frames.shape[3:], dtype=np.int64))
+    flat = frames.reshape(n, frames.shape[1], -1)
+    out = np.empty_like(flat)
+    _photometric_kernel(flat, chans, draw.row_shift.astype(np.int64), draw.blur.astype(np.float32), lut,
+                        draw.noise.astype(np.float32), _noise_bank(), rng.integers(0, NOISE_BANK_SIZE, n), out)
+    return out.reshape(frames.shape)
 
 
 def is_identity(draw: FrameRandomization) -> bool:

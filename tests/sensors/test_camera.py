@@ -9,8 +9,8 @@ import pytest
 
 from laplab.sensors.camera import (FRONT_FACING_CAMERA, LEFT_CAMERA, STEREO_CAMERAS, CameraParams,
                                    camera_for_sensor, camera_rays, render_camera, render_cameras, sample_levels)
-from laplab.sensors.randomize import (RandomizationParams, build_randomized_texture, render_randomized,
-                                      sample_randomization)
+from laplab.sensors.randomize import (RandomizationParams, apply_photometric, build_randomized_texture,
+                                      render_randomized, sample_randomization)
 from laplab.sensors.texture import (BORDER, CENTER, FLOOR, ROAD, TextureParams, TexturePalette,
                                     build_track_texture, luma601)
 
@@ -263,3 +263,18 @@ def test_randomisation_is_seeded_and_off_by_default(straight_texture):
     assert np.array_equal(first, again)
     assert not np.array_equal(first, other)
     assert np.mean(np.abs(first.astype(int) - plain.astype(int))) > 2.0
+
+
+def test_photometric_changes_do_what_they_say(straight_texture):
+    frames = render_camera(straight_texture, [[0.0, 0.0, 0.0], [5.0, 0.1, 0.2]])
+    identity = sample_randomization(np.random.default_rng(0), 2, RandomizationParams())
+    brighter = apply_photometric(frames, identity._replace(brightness=np.array([12.0, -30.0])), np.random.default_rng(0))
+    assert np.array_equal(brighter.astype(int), np.clip(frames.astype(int) + np.array([12, -30])[:, None, None], 0, 255))
+    blurred = apply_photometric(frames, identity._replace(blur=np.ones(2)), np.random.default_rng(0)).astype(int)
+    padded = np.pad(frames.astype(float), ((0, 0), (1, 1), (1, 1)), mode="edge")
+    box = sum(padded[:, i:i + 120, j:j + 160] for i in range(3) for j in range(3)) / 9.0
+    assert np.abs(blurred - np.rint(box)).max() <= 1
+    shifted = apply_photometric(frames, identity._replace(row_shift=np.array([3, -2])), np.random.default_rng(0))
+    assert np.array_equal(shifted[0, :-3], frames[0, 3:]) and np.array_equal(shifted[1, 2:], frames[1, :-2])
+    noisy = apply_photometric(frames, identity._replace(noise=np.array([5.0, 0.0])), np.random.default_rng(0))
+    assert 4.0 < np.std(noisy[0].astype(float) - frames[0]) < 6.0 and np.array_equal(noisy[1], frames[1])
