@@ -65,7 +65,8 @@ class TextureParams:
     ``border_line_width`` white tape lies inside the road along both borders; the centre line is
     ``center_line_width`` wide, ``dash_length`` on / ``dash_gap`` off along the centre line's arc
     length. Walls are ``wall_height`` high with a dark seam every ``panel_width`` and a skirting board
-    ``skirting_height`` high. ``seed`` fixes the grain noise.
+    ``skirting_height`` high. Each texel's colour mixes the classes over ``antialias`` x ``antialias``
+    sample points (smooth tape edges; 1 = one sample at the texel centre). ``seed`` fixes the grain.
     """
 
     texel_size: float = 0.005
@@ -79,6 +80,7 @@ class TextureParams:
     panel_width: float = 1.2
     seam_width: float = 0.04
     skirting_height: float = 0.06
+    antialias: int = 4
     seed: int = 0
     palette: TexturePalette = field(default_factory=TexturePalette)
 
@@ -88,6 +90,8 @@ class TextureParams:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"TextureParams.{name} must be a positive number of metres, got {value!r}")
+        if not (isinstance(self.antialias, int) and 1 <= self.antialias <= 15):
+            raise ValueError(f"TextureParams.antialias must be an integer in 1..15, got {self.antialias!r}")
         for name in ("dash_gap", "seam_width", "skirting_height"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
@@ -107,7 +111,8 @@ class TrackTexture:
       sky_index: one texel, the colour above the walls.
     gray (V, T) uint8 holds ITU-R 601 grey; rgb (3, V, T) uint8 one plane per colour channel (built on
     first use: three times the memory of gray, needed only by RGB cameras).
-    classes (height, width) uint8 is the level-0 class map (FLOOR, ROAD, BORDER, CENTER).
+    coverage (height, width, 4) uint8 counts, per level-0 texel, the sample points (of
+    ``params.antialias ** 2``) on FLOOR, ROAD, BORDER and CENTER; ground colours mix by it.
     The room is the texture's extent: x in [x0, x0 + width * texel_size], likewise y.
     """
 
@@ -126,14 +131,19 @@ class TrackTexture:
     wall_height: float
     sky_index: int
     gray: np.ndarray
-    classes: np.ndarray
+    coverage: np.ndarray
     params: TextureParams
     palettes: tuple[TexturePalette, ...]
+
+    @property
+    def classes(self) -> np.ndarray:
+        """(height, width) uint8 class of each level-0 texel: the class covering most of it."""
+        return np.argmax(self.coverage, axis=-1).astype(np.uint8)
 
     @cached_property
     def rgb(self) -> np.ndarray:
         perimeter = 2.0 * (self.width + self.height) * self.texel_size
-        variants = [_texel_planes(self.classes, self.params, palette, self.params.seed + index, perimeter)[0]
+        variants = [_texel_planes(self.coverage, self.params, palette, self.params.seed + index, perimeter)[0]
                     for index, palette in enumerate(self.palettes)]
         return np.ascontiguousarray(np.array(variants, dtype=np.uint8).transpose(1, 0, 2))
 
@@ -241,10 +251,29 @@ def _ring_edges(points: np.ndarray) -> np.ndarray:
     return np.hstack([closed[:-1], closed[1:]])
 
 
-def rasterise_track_classes(track, params: TextureParams) -> tuple[np.ndarray, float, float]:
-    """Class map (height, width) uint8 of the room around ``track`` and its origin (x0, y0), m."""
+def _class_band(centre, inner, outer, origin, step, width, height, params: TextureParams) -> np.ndarray:
+    """(height, width) class map of square cells ``step`` m wide whose corner (0, 0) is at ``origin``."""
+    to_cells = lambda points: np.ascontiguousarray((points - origin) / step)
+    if np.allclose(centre[0], centre[-1]):
+        edges = np.vstack([_ring_edges(to_cells(inner)), _ring_edges(to_cells(outer))])
+    else:  # an open strip: one ring along the inner border and back along the outer one
+        edges = _ring_edges(to_cells(np.vstack([inner, outer[::-1]])))
+    classes = np.where(_fill_even_odd(edges, width, height) > 0, ROAD, FLOOR).astype(np.uint8)
+    period, dash = (params.dash_length + params.dash_gap) / step, params.dash_length / step
+    _stamp_polyline(classes, to_cells(centre), 0.5 * params.center_line_width / step, (ROAD,), CENTER, period, dash)
+    for border in (inner, outer):  # tape inside the road along each border, over the centre line
+        _stamp_polyline(classes, to_cells(border), params.border_line_width / step, (ROAD, CENTER), BORDER, 0.0, 0.0)
+    return classes
+
+
+def rasterise_track_coverage(track, params: TextureParams) -> tuple[np.ndarray, float, float]:
+    """How much of each texel every class covers, and the room's origin (x0, y0), m.
+
+    Returns coverage (height, width, 4) uint8: of the ``antialias**2`` sample points of each texel,
+    how many fall on FLOOR, ROAD, BORDER and CENTER. Rasterised in bands of rows to bound memory.
+    """
     centre, inner, outer = route_arrays(track)
-    res = params.texel_size
+    res, sub = params.texel_size, params.antialias
     everything = np.vstack([centre, inner, outer])
     lo = np.floor((everything.min(axis=0) - params.margin) / res + 1e-9) * res
     hi = np.ceil((everything.max(axis=0) + params.margin) / res - 1e-9) * res
@@ -252,18 +281,39 @@ def rasterise_track_classes(track, params: TextureParams) -> tuple[np.ndarray, f
     if width * height > 64_000_000:
         raise ValueError(f"texture: the room around the track is {width} x {height} texels at texel_size={res} m; "
                          f"that is too large, raise TextureParams.texel_size")
-    to_texels = lambda points: np.ascontiguousarray((points - lo) / res)
-    closed = np.allclose(centre[0], centre[-1])
-    if closed:
-        edges = np.vstack([_ring_edges(to_texels(inner)), _ring_edges(to_texels(outer))])
-    else:  # an open strip: one ring along the inner border and back along the outer one
-        edges = _ring_edges(to_texels(np.vstack([inner, outer[::-1]])))
-    classes = np.where(_fill_even_odd(edges, width, height) > 0, ROAD, FLOOR).astype(np.uint8)
-    period, dash = (params.dash_length + params.dash_gap) / res, params.dash_length / res
-    _stamp_polyline(classes, to_texels(centre), 0.5 * params.center_line_width / res, (ROAD,), CENTER, period, dash)
-    for border in (inner, outer):  # tape inside the road along each border, over the centre line
-        _stamp_polyline(classes, to_texels(border), params.border_line_width / res, (ROAD, CENTER), BORDER, 0.0, 0.0)
-    return classes, float(lo[0]), float(lo[1])
+    coverage = np.zeros((height, width, 4), dtype=np.uint8)
+    band = max(1, 4_000_000 // (width * sub * sub))
+    for row0 in range(0, height, band):
+        rows = min(band, height - row0)
+        cells = _class_band(centre, inner, outer, lo + np.array([0.0, row0 * res]), res / sub, width * sub,
+                            rows * sub, params)
+        _count_cells(cells, sub, coverage[row0:row0 + rows])
+    return coverage, float(lo[0]), float(lo[1])
+
+
+@njit(cache=True)
+def _count_cells(cells, sub, coverage):
+    """coverage[r, c, k] += number of cells of class k in the sub x sub block of texel (r, c)."""
+    for row in range(coverage.shape[0]):
+        for col in range(coverage.shape[1]):
+            for i in range(row * sub, row * sub + sub):
+                for j in range(col * sub, col * sub + sub):
+                    coverage[row, col, cells[i, j]] += 1
+
+
+@njit(cache=True)
+def _mix_plane(coverage, lut, noise, grain):
+    """(height, width) uint8: the coverage-weighted mean of lut (4,) plus grain * noise on floor and road."""
+    height, width = coverage.shape[0], coverage.shape[1]
+    total = np.float32(coverage[0, 0, 0] + coverage[0, 0, 1] + coverage[0, 0, 2] + coverage[0, 0, 3])
+    plane = np.empty((height, width), dtype=np.uint8)
+    for row in range(height):
+        for col in range(width):
+            cover = coverage[row, col]
+            value = (cover[0] * lut[0] + cover[1] * lut[1] + cover[2] * lut[2] + cover[3] * lut[3]) / total
+            value += grain * noise[row, col] * (cover[FLOOR] + cover[ROAD]) / total
+            plane[row, col] = np.uint8(min(max(value + np.float32(0.5), np.float32(0.0)), np.float32(255.0)))
+    return plane
 
 
 def _box_halve(image: np.ndarray) -> np.ndarray:
@@ -281,20 +331,14 @@ def _mip_chain(image: np.ndarray) -> list[np.ndarray]:
     return levels
 
 
-def _ground_channels(classes: np.ndarray, palette: TexturePalette, seed: int) -> list[np.ndarray]:
-    """R, G, B (height, width) uint8 planes of the ground: palette colours plus grain on road and floor."""
-    noise = None
-    if palette.grain > 0:
-        noise = np.random.default_rng(seed).standard_normal(classes.shape, dtype=np.float32)
-        noise *= np.float32(palette.grain) * np.isin(classes, (FLOOR, ROAD))
+def _ground_channels(coverage: np.ndarray, palette: TexturePalette, seed: int) -> list[np.ndarray]:
+    """R, G, B (height, width) uint8 planes of the ground: palette colours mixed by coverage, plus
+    grain on road and floor."""
+    noise = np.random.default_rng(seed).standard_normal(coverage.shape[:2], dtype=np.float32) \
+        if palette.grain > 0 else np.zeros(coverage.shape[:2], dtype=np.float32)
     lut = np.array([palette.floor, palette.road, palette.border, palette.center], dtype=np.float32)
-    planes = []
-    for channel in range(3):
-        plane = lut[:, channel][classes]
-        if noise is not None:
-            plane += noise
-        planes.append(np.clip(np.rint(plane), 0, 255).astype(np.uint8))
-    return planes
+    return [_mix_plane(coverage, np.ascontiguousarray(lut[:, channel]), noise, np.float32(palette.grain))
+            for channel in range(3)]
 
 
 def _paint_walls(params: TextureParams, palette: TexturePalette, perimeter: float) -> np.ndarray:
@@ -313,16 +357,22 @@ def _paint_walls(params: TextureParams, palette: TexturePalette, perimeter: floa
     return np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
 
 
-def _luma_planes(red: np.ndarray, green: np.ndarray, blue: np.ndarray) -> np.ndarray:
-    return ((299 * red.astype(np.int32) + 587 * green.astype(np.int32) + 114 * blue.astype(np.int32) + 500)
-            // 1000).astype(np.uint8)
+@njit(cache=True)
+def _luma_planes(red, green, blue):
+    """ITU-R BT.601 grey (rounded) of three uint8 planes, as :func:`luma601`."""
+    grey = np.empty(red.shape, dtype=np.uint8)
+    for row in range(red.shape[0]):
+        for col in range(red.shape[1]):
+            grey[row, col] = (299 * np.int32(red[row, col]) + 587 * np.int32(green[row, col])
+                              + 114 * np.int32(blue[row, col]) + 500) // 1000
+    return grey
 
 
-def _texel_planes(classes: np.ndarray, params: TextureParams, palette: TexturePalette, seed: int,
+def _texel_planes(coverage: np.ndarray, params: TextureParams, palette: TexturePalette, seed: int,
                   perimeter: float) -> tuple[list[np.ndarray], np.ndarray]:
     """The R, G, B flat texel arrays (ground mip levels, walls, sky) of one palette, and the
     (L, 2) rows / columns of the ground levels."""
-    ground = _ground_channels(classes, palette, seed)
+    ground = _ground_channels(coverage, palette, seed)
     wall = _paint_walls(params, palette, perimeter)
     planes = []
     for channel in range(3):
@@ -332,10 +382,10 @@ def _texel_planes(classes: np.ndarray, params: TextureParams, palette: TexturePa
     return planes, np.array([level.shape for level in levels], dtype=np.int64)
 
 
-def _grey_texels(classes: np.ndarray, params: TextureParams, palette: TexturePalette, seed: int,
+def _grey_texels(coverage: np.ndarray, params: TextureParams, palette: TexturePalette, seed: int,
                  perimeter: float) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
     """Flat grey texels of one palette: mip levels of the ITU-R 601 luma, then walls, then the sky."""
-    ground = _luma_planes(*_ground_channels(classes, palette, seed))
+    ground = _luma_planes(*_ground_channels(coverage, palette, seed))
     levels = _mip_chain(ground)
     wall = luma601(_paint_walls(params, palette, perimeter))
     sky = luma601(np.array(palette.sky))
@@ -353,11 +403,11 @@ def build_track_texture(track, params: TextureParams = TextureParams(),
     """
     if not isinstance(params, TextureParams):
         raise TypeError(f"build_track_texture: params must be a TextureParams, got {type(params).__name__}")
-    classes, x0, y0 = rasterise_track_classes(track, params)
-    height, width = classes.shape
+    coverage, x0, y0 = rasterise_track_coverage(track, params)
+    height, width = coverage.shape[:2]
     perimeter = 2.0 * (width + height) * params.texel_size
     palettes = (params.palette,) + tuple(extra_palettes)
-    grey = [_grey_texels(classes, params, palette, params.seed + index, perimeter)
+    grey = [_grey_texels(coverage, params, palette, params.seed + index, perimeter)
             for index, palette in enumerate(palettes)]
     sizes, (wall_rows, wall_cols) = grey[0][1], grey[0][2]
     texels = sizes[:, 0] * sizes[:, 1]
@@ -371,4 +421,4 @@ def build_track_texture(track, params: TextureParams = TextureParams(),
         wall_offset=wall_offset, wall_rows=int(wall_rows), wall_cols=int(wall_cols),
         wall_texel_size=float(params.wall_texel_size), wall_height=float(wall_rows * params.wall_texel_size),
         sky_index=wall_offset + int(wall_rows * wall_cols), gray=np.stack([flat for flat, _, _ in grey]),
-        classes=classes, params=params, palettes=palettes)
+        coverage=coverage, params=params, palettes=palettes)

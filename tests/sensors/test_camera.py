@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from laplab.sensors.camera import (FRONT_FACING_CAMERA, LEFT_CAMERA, STEREO_CAMERAS, CameraParams,
+from laplab.sensors.camera import (FRONT_FACING_CAMERA, HUMAN_CAMERA, LEFT_CAMERA, STEREO_CAMERAS, CameraParams,
                                    camera_for_sensor, camera_rays, render_camera, render_cameras, sample_levels)
 from laplab.sensors.randomize import (RandomizationParams, apply_photometric, build_randomized_texture,
                                       render_randomized, sample_randomization)
@@ -169,11 +169,25 @@ def render_camera_reference(texture, poses, params):
     wall_index = np.where((z >= texture.wall_height) | (t < 0), texture.sky_index,
                           texture.wall_offset + row * texture.wall_cols + col)
     index = np.where(on_tex, tex_index, wall_index)
+    # Bilinear: level-0 ground samples blend the 2x2 texels around (tu - 0.5, tv - 0.5).
+    blend = params.bilinear & on_tex & (level == 0)
+    su = np.clip(tu - np.float32(0.5), 0, texture.width - 1).astype(np.float32)
+    sv = np.clip(tv - np.float32(0.5), 0, texture.height - 1).astype(np.float32)
+    wu = np.where(blend, su - np.floor(su), 0).astype(np.float32)
+    wv = np.where(blend, sv - np.floor(sv), 0).astype(np.float32)
+    corner = np.where(blend, np.floor(sv).astype(np.int64) * texture.width + np.floor(su).astype(np.int64), index)
     k2 = params.supersample ** 2
     frames = []
     for plane in [texture.gray] if params.grayscale else list(texture.rgb):
-        summed = plane[variant[:, None], index].astype(np.int64).reshape(-1, params.height, params.width, k2)
-        frames.append(((summed.sum(axis=3) + k2 // 2) // k2).astype(np.uint8))
+        texel = lambda offset: plane[variant[:, None], np.minimum(corner + offset, plane.shape[1] - 1)].astype(np.float32)
+        low = texel(0) + wu * (texel(1) - texel(0))
+        high = texel(texture.width) + wu * (texel(texture.width + 1) - texel(texture.width))
+        value = low + wv * (high - low)
+        summed = value.reshape(-1, params.height, params.width, k2).sum(axis=3)
+        if params.bilinear:
+            frames.append((summed / k2 + 0.5).astype(np.uint8))
+        else:
+            frames.append(((summed.astype(np.int64) + k2 // 2) // k2).astype(np.uint8))
     return frames[0] if params.grayscale else np.stack(frames, axis=-1)
 
 
@@ -186,7 +200,8 @@ def track_and_texture():
 
 @pytest.mark.parametrize("camera", [FRONT_FACING_CAMERA, FRONT_FACING_CAMERA.with_(supersample=2),
                                     LEFT_CAMERA.with_(mipmap=False, pitch=-0.2),
-                                    CameraParams(width=96, height=72, grayscale=False, supersample=2)])
+                                    CameraParams(width=96, height=72, grayscale=False, supersample=2),
+                                    FRONT_FACING_CAMERA.with_(bilinear=True), HUMAN_CAMERA.with_(width=96, height=72)])
 def test_numba_kernel_matches_numpy_reference(track_and_texture, camera):
     route, texture = track_and_texture
     rng = np.random.default_rng(3)
