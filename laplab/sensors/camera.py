@@ -65,15 +65,13 @@ class CameraParams:
             value = getattr(self, name)
             if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and 1 <= value <= 8192):
                 raise ValueError(f"CameraParams.{name} must be a positive integer, got {value!r}")
-        if not (isinstance(self.fov, (int, float)) and 0.0 < self.fov < math.pi - 1e-3):
-            raise ValueError(f"CameraParams.fov must be a horizontal field of view in (0, pi) rad, got {self.fov!r}")
-        if not (isinstance(self.mount_up, (int, float)) and 0.0 < self.mount_up < 100.0):
-            raise ValueError(f"CameraParams.mount_up must be a height above the ground in (0, 100) m, got {self.mount_up!r}")
-        if not (isinstance(self.pitch, (int, float)) and abs(self.pitch) < 0.5 * math.pi):
-            raise ValueError(f"CameraParams.pitch must be in (-pi/2, pi/2) rad (positive = down), got {self.pitch!r}")
-        for name in ("mount_forward", "mount_lateral"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"CameraParams.{name} must be a finite number of metres, got {getattr(self, name)!r}")
+        for name, low, high, meaning in (("fov", 0.0, math.pi, "a horizontal field of view, rad"),
+                                         ("mount_up", 0.0, 100.0, "a height above the ground, m"),
+                                         ("pitch", -0.5 * math.pi, 0.5 * math.pi, "rad, positive = down"),
+                                         ("mount_forward", -100.0, 100.0, "m"), ("mount_lateral", -100.0, 100.0, "m")):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and low < value < high):
+                raise ValueError(f"CameraParams.{name} must be in ({low:.4g}, {high:.4g}) ({meaning}), got {value!r}")
 
     @property
     def focal_length(self) -> float:
