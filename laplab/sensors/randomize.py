@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from laplab.sensors.camera import CameraParams, FRONT_FACING_CAMERA, render_camera
+from laplab.sensors.camera import FRONT_FACING_CAMERA, CameraParams, render_camera, render_cameras
 from laplab.sensors.texture import TextureParams, TexturePalette, TrackTexture, build_track_texture
 
 
@@ -198,8 +198,13 @@ def is_identity(draw: FrameRandomization) -> bool:
                 and np.all(draw.offset_x == 0) and np.all(draw.offset_y == 0) and np.all(draw.yaw == 0))
 
 
-def render_randomized(texture: TrackTexture, poses, camera: CameraParams, draw: FrameRandomization,
-                      rng: np.random.Generator) -> np.ndarray:
-    """:func:`render_camera` with the changes of ``draw``: (N, H, W) or (N, H, W, 3) uint8."""
-    frames = render_camera(texture, jitter_poses(poses, draw), camera, variant=draw.variant)
+def render_randomized(texture: TrackTexture, poses, camera: CameraParams | tuple[CameraParams, ...],
+                      draw: FrameRandomization, rng: np.random.Generator) -> np.ndarray:
+    """:func:`render_camera` (or, for a tuple of cameras, :func:`render_cameras`: stereo) with the
+    changes of ``draw``: (N, H, W), (N, H, W, 3) or (N, H, W, cameras) uint8."""
+    poses = jitter_poses(poses, draw)
+    if isinstance(camera, tuple):
+        frames = render_cameras(texture, poses, camera, variant=draw.variant)
+    else:
+        frames = render_camera(texture, poses, camera, variant=draw.variant)
     return frames if is_identity(draw) else apply_photometric(frames, draw, rng)

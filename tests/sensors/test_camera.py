@@ -276,6 +276,9 @@ def test_randomisation_is_seeded_and_off_by_default(straight_texture):
         return render_randomized(texture, poses, FRONT_FACING_CAMERA, draw, rng)
     first, again, other = run(7), run(7), run(8)
     assert np.array_equal(first, again)
+    rng = np.random.default_rng(1)
+    stereo = render_randomized(straight_texture, poses, STEREO_CAMERAS, sample_randomization(rng, 3, on), rng)
+    assert stereo.shape == (3, 120, 160, 2)
     assert not np.array_equal(first, other)
     assert np.mean(np.abs(first.astype(int) - plain.astype(int))) > 2.0
 
