@@ -1,0 +1,100 @@
+"""``laplab export`` (a model as a ``.tar.gz`` archive or an ONNX policy for the car) and ``laplab import``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from laplab.cli import UserError
+
+PARITY_TOLERANCE = 1e-4  # max |ONNX - torch| accepted by the export's self-check
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    export = subparsers.add_parser(
+        "export", help="export a model: archive (tar.gz) or ONNX policy for the car",
+        description="Write model MODEL as a .tar.gz archive that `laplab import` restores (weights of one "
+                    "checkpoint, model_metadata.json, hyperparameters, reward function, laplab.json, metrics), "
+                    "or its policy as an ONNX graph plus model_metadata.json for the physical car "
+                    "(laplab.runtime.OnnxPolicy runs it). See docs/car.md.")
+    export.add_argument("model", metavar="MODEL", help="name of the model")
+    export.add_argument("--format", choices=("tar", "onnx"), default="tar", help="what to write (default: tar)")
+    export.add_argument("--checkpoint", default="best", help="'best' (default), 'last' or a checkpoint file name")
+    export.add_argument("--out", type=Path, help="tar: the archive file (default ./MODEL.tar.gz); "
+                                                 "onnx: the folder (default ./MODEL-onnx)")
+    export.set_defaults(func=export_command)
+
+    imp = subparsers.add_parser(
+        "import", help="restore a model from a `laplab export` archive",
+        description="Check a model archive (member names, checksums, metadata, hyperparameters, laplab.json, "
+                    "and that the checkpoint loads) and add it to your models, atomically.")
+    imp.add_argument("file", type=Path, metavar="FILE.tar.gz")
+    imp.add_argument("--name", help="name of the new model (default: the exported model's name)")
+    imp.set_defaults(func=import_command)
+
+
+@dataclass(frozen=True)
+class OnnxExport:
+    onnx_path: Path
+    metadata_path: Path
+    parity_error: float | None  # max |ONNX - torch| on random observations (None: onnxruntime absent)
+
+
+def export_model_onnx(name: str, checkpoint: str = "best", out_dir: str | Path | None = None) -> OnnxExport:
+    """Write ``model.onnx`` and ``model_metadata.json`` of model ``name``'s policy at ``checkpoint``
+    into ``out_dir`` (default ``./<name>-onnx``), and check the graph against torch."""
+    try:
+        from laplab.agents.onnx_export import onnx_parity_error, policy_to_onnx
+        from laplab.train.policy import load_model_policy
+    except ImportError as exc:
+        raise UserError(f"ONNX export needs torch and onnx ({exc}); install them with "
+                        "`pip install torch onnx onnxruntime`.") from None
+    from laplab.store.atomic import atomic_write_bytes, atomic_write_text
+    try:
+        import onnx  # noqa: F401  (policy_to_onnx imports it; fail early with a clear message)
+    except ImportError:
+        raise UserError("ONNX export needs the onnx package: `pip install onnx onnxruntime`.") from None
+
+    policy = load_model_policy(name, checkpoint)
+    metadata_text = json.dumps(policy.folder.read_model_metadata(), indent=2) + "\n"
+    sensors = policy.metadata.sensors
+    graph = policy_to_onnx(policy.network, policy.observation_space, sensors, metadata_text)
+    try:
+        error = onnx_parity_error(graph, policy.network, policy.observation_space, sensors)
+    except ImportError:
+        error = None
+    if error is not None and error > PARITY_TOLERANCE:
+        raise UserError(f"the ONNX graph of {name!r} differs from the torch policy by {error:.3g} "
+                        f"(> {PARITY_TOLERANCE}); nothing was written. Please report this as a bug.")
+    folder = Path(out_dir) if out_dir is not None else Path.cwd() / f"{name}-onnx"
+    onnx_path = atomic_write_bytes(folder / "model.onnx", graph)
+    metadata_path = atomic_write_text(folder / "model_metadata.json", metadata_text)
+    return OnnxExport(onnx_path, metadata_path, error)
+
+
+def export_command(args: argparse.Namespace) -> int:
+    from laplab.store.archive import ArchiveError, export_model_archive
+    if args.format == "onnx":
+        result = export_model_onnx(args.model, args.checkpoint, args.out)
+        check = ("" if result.parity_error is None
+                 else f" (max |ONNX - torch| = {result.parity_error:.1e} on 16 random observations)")
+        print(f"wrote {result.onnx_path} and {result.metadata_path.name}{check}")
+        return 0
+    try:
+        path = export_model_archive(args.model, args.checkpoint, args.out)
+    except ArchiveError as exc:
+        raise UserError(str(exc)) from None
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
+    return 0
+
+
+def import_command(args: argparse.Namespace) -> int:
+    from laplab.store.archive import ArchiveError, import_model_archive
+    try:
+        imported = import_model_archive(args.file, args.name)
+    except ArchiveError as exc:
+        raise UserError(str(exc)) from None
+    print(f"imported model {imported.name!r} (checkpoint {imported.checkpoint}) into {imported.folder.root}")
+    return 0

@@ -1,0 +1,272 @@
+"""Model archives: one model and one checkpoint packed as ``.tar.gz``, and their safe import.
+
+An archive holds a subset of the model folder, at the same paths (see docs/car.md)::
+
+    laplab-export.json                 manifest: format, version, model name, checkpoint, sha256 per file
+    model/model_metadata.json
+    model/<iteration>_Step-<steps>.ckpt  the exported checkpoint (the full learner state)
+    model/deepracer_checkpoints.json   best and last both name that checkpoint
+    ip/hyperparameters.json
+    reward_function.py
+    laplab.json
+    metrics/TrainingMetrics.json       (when present)
+    metrics/laplab-iterations.json     (when present)
+
+Import checks every member before anything is written (regular files at the paths above only: no
+absolute names, ``..``, links or devices; sizes and sha256 as the manifest says), extracts into a
+hidden temporary folder beside the models, validates the model there (metadata, hyperparameters,
+laplab.json, reward source, and that the checkpoint loads into the model's network), then renames
+the folder into place: a model appears complete or not at all.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import posixpath
+import re
+import shutil
+import tarfile
+import secrets
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from laplab import __version__
+from laplab.store.atomic import atomic_write_with
+from laplab.store.checkpoints import CHECKPOINT_NAME_PATTERN, CheckpointStore
+from laplab.store.layout import ModelFolder, model_folder, models_root, validate_model_name
+
+ARCHIVE_FORMAT = "laplab-model"
+ARCHIVE_VERSION = 1
+MANIFEST = "laplab-export.json"
+_FIXED_MEMBERS = ("model/model_metadata.json", "model/deepracer_checkpoints.json", "ip/hyperparameters.json",
+                  "reward_function.py", "laplab.json")
+_OPTIONAL_MEMBERS = ("metrics/TrainingMetrics.json", "metrics/laplab-iterations.json")
+_CHECKPOINT_MEMBER = re.compile(r"model/[0-9]+_Step-[0-9]+\.ckpt")
+
+
+class ArchiveError(ValueError):
+    """A model archive that cannot be written or imported; the message names the file and the reason."""
+
+
+@dataclass(frozen=True)
+class ImportedModel:
+    name: str
+    folder: ModelFolder
+    checkpoint: str  # file name of the checkpoint, now the model's best and last
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _tar_info(name: str, size: int, mtime: float) -> tarfile.TarInfo:
+    info = tarfile.TarInfo(name)
+    info.size, info.mtime, info.mode = size, int(mtime), 0o644
+    return info
+
+
+def export_model_archive(name: str, checkpoint: str = "best", out: str | os.PathLike | None = None) -> Path:
+    """Pack model ``name`` at ``checkpoint`` ('best', 'last' or a file name) into the file ``out``
+    (default, or when ``out`` is a folder: ``<name>.tar.gz`` in it / here), written atomically.
+    Returns the archive's path."""
+    folder = model_folder(name)
+    if not folder.exists():
+        raise FileNotFoundError(f"no model named {name!r} (looked in {folder.root}).")
+    store = CheckpointStore(folder)
+    checkpoint_path = store.resolve(checkpoint)
+    record = next((r for r in (store.best(), store.last()) if r is not None and r.name == checkpoint_path.name), None)
+    now = time.time()
+    records = {"name": checkpoint_path.name, "avg_eval_metric": None if record is None else record.avg_eval_metric,
+               "time_stamp": now if record is None else record.time_stamp}
+    generated = {"model/deepracer_checkpoints.json": json.dumps(
+        {"best_checkpoint": records, "last_checkpoint": records}, indent=2).encode() + b"\n"}
+    files = {member: folder.root / member for member in _FIXED_MEMBERS + _OPTIONAL_MEMBERS
+             if member not in generated and (folder.root / member).is_file()}
+    missing = [m for m in _FIXED_MEMBERS if m not in files and m not in generated]
+    if missing:
+        raise ArchiveError(f"model {name!r} lacks {missing} in {folder.root}; it cannot be exported "
+                           "(was it created by laplab train?)")
+    files[f"model/{checkpoint_path.name}"] = checkpoint_path
+    manifest = {"format": ARCHIVE_FORMAT, "version": ARCHIVE_VERSION, "name": name,
+                "checkpoint": checkpoint_path.name, "laplab_version": __version__, "exported_at": now,
+                "files": {**{m: {"sha256": _sha256(p), "size": p.stat().st_size} for m, p in files.items()},
+                          **{m: {"sha256": hashlib.sha256(b).hexdigest(), "size": len(b)}
+                             for m, b in generated.items()}}}
+    generated[MANIFEST] = json.dumps(manifest, indent=2).encode() + b"\n"
+    target = Path(out) if out is not None else Path.cwd()
+    if target.is_dir():
+        target = target / f"{name}.tar.gz"
+
+    def write(temporary: Path) -> None:
+        with tarfile.open(temporary, "w:gz", format=tarfile.PAX_FORMAT) as tar:
+            for member in [MANIFEST, *sorted(set(files) | set(generated) - {MANIFEST})]:
+                if member in generated:
+                    tar.addfile(_tar_info(member, len(generated[member]), now), io.BytesIO(generated[member]))
+                else:
+                    with open(files[member], "rb") as handle:
+                        tar.addfile(_tar_info(member, files[member].stat().st_size, now), handle)
+
+    return atomic_write_with(target, write)
+
+
+def _check_members(archive: Path, tar: tarfile.TarFile) -> dict[str, tarfile.TarInfo]:
+    """Every member is a regular file at an allowed relative path (directories are ignored)."""
+    members: dict[str, tarfile.TarInfo] = {}
+    for info in tar.getmembers():
+        name = info.name
+        clean = posixpath.normpath(name.removeprefix("./")) if name not in ("", ".") else "."
+        if (name.startswith(("/", "\\")) or "\\" in name or re.match(r"[A-Za-z]:", name)
+                or ".." in name.split("/") or clean.startswith("..")):
+            raise ArchiveError(f"{archive}: member {name!r} has an absolute path or '..'; refusing to import.")
+        if info.isdir():
+            continue
+        if not info.isfile():
+            raise ArchiveError(f"{archive}: member {name!r} is a link or a special file; a model archive holds "
+                               "regular files only.")
+        if clean not in _FIXED_MEMBERS + _OPTIONAL_MEMBERS + (MANIFEST,) and not _CHECKPOINT_MEMBER.fullmatch(clean):
+            raise ArchiveError(f"{archive}: unexpected member {name!r}; a laplab model archive holds only "
+                               f"{MANIFEST}, {', '.join(_FIXED_MEMBERS + _OPTIONAL_MEMBERS)} and one model/*.ckpt.")
+        if clean in members:
+            raise ArchiveError(f"{archive}: member {clean!r} appears twice.")
+        members[clean] = info
+    return members
+
+
+def _read_manifest(archive: Path, tar: tarfile.TarFile, members: dict[str, tarfile.TarInfo]) -> dict:
+    if MANIFEST not in members:
+        raise ArchiveError(f"{archive}: no {MANIFEST}; this is not an archive written by `laplab export`.")
+    try:
+        manifest = json.loads(tar.extractfile(members[MANIFEST]).read())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ArchiveError(f"{archive}: {MANIFEST} is not valid JSON ({exc}).") from None
+    if not isinstance(manifest, dict) or manifest.get("format") != ARCHIVE_FORMAT:
+        raise ArchiveError(f"{archive}: {MANIFEST} does not describe a {ARCHIVE_FORMAT!r} archive.")
+    if manifest.get("version") != ARCHIVE_VERSION:
+        raise ArchiveError(f"{archive}: archive version {manifest.get('version')!r} is not supported "
+                           f"(this laplab reads version {ARCHIVE_VERSION}).")
+    listed = manifest.get("files")
+    checkpoint = manifest.get("checkpoint")
+    if not (isinstance(listed, dict) and isinstance(checkpoint, str) and CHECKPOINT_NAME_PATTERN.fullmatch(checkpoint)):
+        raise ArchiveError(f"{archive}: {MANIFEST} lacks a valid 'files' table or 'checkpoint' name.")
+    present = set(members) - {MANIFEST}
+    expected = set(_FIXED_MEMBERS) | {f"model/{checkpoint}"}
+    missing, unlisted = sorted((set(listed) | expected) - present), sorted(present - set(listed))
+    if missing or unlisted:
+        raise ArchiveError(f"{archive}: the archive lacks {missing} and holds unlisted {unlisted} compared with "
+                           f"its {MANIFEST}; it is incomplete or was altered.")
+    for member, entry in listed.items():
+        if not isinstance(entry, dict) or members[member].size != entry.get("size"):
+            raise ArchiveError(f"{archive}: {member} has {members[member].size} bytes, the manifest says "
+                               f"{entry.get('size') if isinstance(entry, dict) else entry!r}; the archive is damaged.")
+    return manifest
+
+
+def import_model_archive(path: str | os.PathLike, name: str | None = None) -> ImportedModel:
+    """Restore an archive as model ``name`` (default: the exported model's name); see the module
+    docstring for the checks. Refuses a name that is taken."""
+    archive = Path(path)
+    if not archive.is_file():
+        raise FileNotFoundError(f"{archive}: no such archive file.")
+    try:
+        tar = tarfile.open(archive, "r:gz")
+    except (tarfile.TarError, OSError) as exc:
+        raise ArchiveError(f"{archive}: not a gzip-compressed tar archive ({exc}).") from None
+    with tar:
+        members = _check_members(archive, tar)
+        manifest = _read_manifest(archive, tar, members)
+        if name is None and not isinstance(manifest.get("name"), str):
+            raise ArchiveError(f"{archive}: {MANIFEST} names no model; give one with --name NEW.")
+        new_name = validate_model_name(name if name is not None else manifest["name"])
+        target = model_folder(new_name)
+        if target.exists():
+            raise ArchiveError(f"a model named {new_name!r} already exists at {target.root}; models are "
+                               "immutable: import under another name with --name NEW.")
+        root = models_root()
+        root.mkdir(parents=True, exist_ok=True)
+        staging = root / f".import-{new_name}-{secrets.token_hex(6)}"  # hidden: list_models skips it
+        staging.mkdir()
+        try:
+            tar.extractall(staging, members=[members[m] for m in manifest["files"]], filter="data")
+            for member, entry in manifest["files"].items():
+                if _sha256(staging / member) != entry.get("sha256"):
+                    raise ArchiveError(f"{archive}: {member} does not match its sha256 in {MANIFEST}; "
+                                       "the archive is damaged or was altered.")
+            validate_model_folder(ModelFolder(staging), manifest["checkpoint"], str(archive))
+            try:
+                os.rename(staging, target.root)
+            except OSError as exc:
+                raise ArchiveError(f"cannot create {target.root}: {exc}.") from None
+        except BaseException:
+            shutil.rmtree(staging, ignore_errors=True)
+            raise
+    return ImportedModel(new_name, target, manifest["checkpoint"])
+
+
+def validate_model_folder(folder: ModelFolder, checkpoint: str, source: str) -> None:
+    """Check that ``folder`` is a usable laplab model whose ``checkpoint`` loads into its network.
+    Errors name ``source`` and the file at fault."""
+    from laplab.agents.hyperparameters import HyperparameterError, from_dict as hyperparameters_from_dict
+    from laplab.env.metadata import MetadataError, metadata_from_dict
+    from laplab.train.config import ConfigError, TrainConfig
+
+    def read(member: str):
+        try:
+            return json.loads((folder.root / member).read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ArchiveError(f"{source}: {member} is not valid JSON ({exc}).") from None
+
+    try:
+        metadata = metadata_from_dict(read("model/model_metadata.json"), f"{source}: model/model_metadata.json")
+        hyper = hyperparameters_from_dict(read("ip/hyperparameters.json"), f"{source}: ip/hyperparameters.json")
+        config = TrainConfig.from_dict(read("laplab.json"), f"{source}: laplab.json")
+    except (MetadataError, HyperparameterError, ConfigError, TypeError) as exc:
+        raise ArchiveError(str(exc)) from None
+    for what, file_value, config_value in (("model/model_metadata.json", metadata, config.metadata()),
+                                           ("ip/hyperparameters.json", hyper, config.hyper())):
+        if file_value != config_value:
+            raise ArchiveError(f"{source}: {what} differs from the one recorded in laplab.json; the model "
+                               "would not train or evaluate as it was trained.")
+    try:
+        compile(folder.read_reward_function(), f"{source}: reward_function.py", "exec")
+    except (SyntaxError, UnicodeDecodeError, ValueError) as exc:
+        raise ArchiveError(f"{source}: reward_function.py does not compile: {exc}") from None
+    store = CheckpointStore(folder)
+    if store.resolve("best").name != checkpoint or store.resolve("last").name != checkpoint:
+        raise ArchiveError(f"{source}: model/deepracer_checkpoints.json does not name {checkpoint}.")
+    _check_checkpoint_loads(folder.model_dir / checkpoint, config, source)
+
+
+def _check_checkpoint_loads(path: Path, config, source: str) -> None:
+    import torch
+
+    from laplab.env.observations import ObservationBuilder
+    from laplab.sim.simulator import Simulator
+    from laplab.track.geometry import TrackError
+    from laplab.track.registry import load_track
+    from laplab.train.trainer import build_learner
+    from laplab.vehicle.params import vehicle_preset
+
+    try:
+        track = load_track(config.track)
+    except TrackError as exc:
+        raise ArchiveError(f"{source}: the model's track {config.track!r} (laplab.json 'track') is not available "
+                           f"here, so its checkpoint cannot be checked: {exc}") from None
+    sim = Simulator(track, 1, vehicle_preset(config.vehicle))
+    space = ObservationBuilder(sim, config.metadata(), stack_size=config.hyper().stack_size).single_space
+    learner = build_learner(config, space, config.seed)
+    try:
+        # weights_only: an archive may come from anyone, and a full unpickle can run arbitrary code.
+        learner.load_state_dict(torch.load(path, map_location="cpu", weights_only=True)["learner"])
+    except Exception as exc:  # a truncated or unsafe pickle, a foreign state dict, mismatched shapes ...
+        reason = " ".join(str(exc).split())  # torch's messages span lines; keep one paragraph
+        raise ArchiveError(f"{source}: checkpoint model/{path.name} does not load into the model's network "
+                           f"(sensors {list(config.metadata().sensors)}, {config.metadata().training_algorithm}): "
+                           f"{type(exc).__name__}: {reason[:300]}") from None
