@@ -1,0 +1,123 @@
+"""The leaderboard: every evaluated model ranked on a track by its best evaluation there.
+
+Ranking (the DeepRacer league's order): average of three consecutive laps (ascending; models
+without three consecutive completed laps after those with), then best lap (ascending; none last),
+then average completion (descending), then off-track count (ascending). Each model is represented
+by its best evaluation on the track under that same order. Evaluations without laplab's
+``summary.json`` (made by other tools) carry no track and are not ranked.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from laplab.evaluate.summary import EvaluationSummary, gap_to_optimal
+from laplab.evaluate.trials import EvaluationError, read_evaluation_summary
+from laplab.store.layout import list_models, model_folder
+
+
+@dataclass(frozen=True)
+class EvaluationRecord:
+    """One stored evaluation: which model, when (stamp), on which track, and its summary."""
+
+    model: str
+    stamp: str
+    track: str
+    checkpoint: str | None
+    summary: EvaluationSummary
+
+
+@dataclass(frozen=True)
+class LeaderboardEntry:
+    """A row of the leaderboard (times in s, completion in %)."""
+
+    rank: int
+    model: str
+    stamp: str
+    track: str
+    checkpoint: str | None
+    average_3: float | None
+    best_lap: float | None
+    completion: float
+    off_track_count: int
+    gap_to_optimal: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def load_records(root: str | os.PathLike | None = None) -> list[EvaluationRecord]:
+    """Every laplab evaluation of every model under ``root`` (default: ``$LAPLAB_HOME/models``).
+
+    A summary.json that cannot be read raises :class:`EvaluationError` naming the file.
+    """
+    records = []
+    for name in list_models(root):
+        folder = model_folder(name, root)
+        for stamp in folder.list_evaluations():
+            document = read_evaluation_summary(folder, stamp)
+            if document is None:
+                continue
+            source = str(folder.evaluation_dir(stamp) / "summary.json")
+            try:
+                track = document["track"]["name"]
+                summary = EvaluationSummary.from_dict(document["summary"], source)
+            except (KeyError, TypeError, ValueError) as exc:
+                raise EvaluationError(f"{source}: unreadable evaluation summary ({exc})") from None
+            records.append(EvaluationRecord(name, stamp, str(track), document.get("checkpoint"), summary))
+    return records
+
+
+def _sort_key(record: EvaluationRecord) -> tuple:
+    s = record.summary
+    return (s.average_3 is None, s.average_3 if s.average_3 is not None else math.inf,
+            s.best_lap is None, s.best_lap if s.best_lap is not None else math.inf,
+            -s.average_completion, s.off_track_count, record.model, record.stamp)
+
+
+def rank(records: list[EvaluationRecord], track: str | None = None) -> dict[str, list[LeaderboardEntry]]:
+    """Leaderboards per track name (only ``track`` when given): each model's best evaluation there,
+    ranked; tracks in name order."""
+    by_track: dict[str, dict[str, EvaluationRecord]] = {}
+    for record in records:
+        if track is not None and record.track != track:
+            continue
+        models = by_track.setdefault(record.track, {})
+        best = models.get(record.model)
+        if best is None or _sort_key(record) < _sort_key(best):
+            models[record.model] = record
+    boards = {}
+    for name in sorted(by_track):
+        ordered = sorted(by_track[name].values(), key=_sort_key)
+        boards[name] = [_entry(position + 1, record) for position, record in enumerate(ordered)]
+    return boards
+
+
+def _entry(position: int, record: EvaluationRecord) -> LeaderboardEntry:
+    s = record.summary
+    gap = s.gap_to_optimal
+    if gap is None and s.best_lap is not None:
+        gap = gap_to_optimal(s.best_lap, _optimal_for(record.track))
+    return LeaderboardEntry(rank=position, model=record.model, stamp=record.stamp, track=record.track,
+                            checkpoint=record.checkpoint, average_3=s.average_3, best_lap=s.best_lap,
+                            completion=s.average_completion, off_track_count=s.off_track_count,
+                            gap_to_optimal=gap)
+
+
+def _optimal_for(track_name: str) -> float | None:
+    """The cached optimal lap time of a track known by name (None when it cannot be loaded or solved)."""
+    from laplab.evaluate.optimal import optimal_lap_time
+    from laplab.track.geometry import TrackError
+    from laplab.track.registry import load_track
+    try:
+        return optimal_lap_time(load_track(track_name))
+    except (TrackError, ValueError, RuntimeError, ArithmeticError):
+        return None
+
+
+def leaderboard(track: str | None = None, root: str | os.PathLike | None = None) -> dict[str, list[LeaderboardEntry]]:
+    """The leaderboards of the stored evaluations (see :func:`rank`)."""
+    return rank(load_records(root), track)
