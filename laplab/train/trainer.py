@@ -101,7 +101,7 @@ def load_weights_only(learner, state: dict) -> None:
 
 def load_checkpoint(path) -> dict:
     """Read a checkpoint written by :func:`checkpoint_bytes`."""
-    return torch.load(path, map_location="cpu", weights_only=False)
+    return torch.load(path, map_location="cpu", weights_only=True)  # tensors and plain data only: no code runs
 
 
 class Trainer:

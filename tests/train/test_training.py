@@ -65,6 +65,8 @@ def check_layout(name: str, iterations: int) -> None:
     ("clipped_ppo", CONTINUOUS, ("STATE",)),
     ("sac", CONTINUOUS, ("STATE",)),
     ("clipped_ppo", {}, ("STATE", "SECTOR_LIDAR")),
+    ("clipped_ppo", {}, ("FRONT_FACING_CAMERA",)),
+    ("sac", CONTINUOUS, ("FRONT_FACING_CAMERA", "LIDAR")),
 ])
 def test_tiny_training_runs_write_the_deepracer_layout(algorithm, meta, sensors):
     config = small_config(max_episodes=12, meta={**meta, "training_algorithm": algorithm, "sensor": list(sensors)})
