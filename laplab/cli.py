@@ -13,6 +13,7 @@ import sys
 
 COMMAND_MODULES = (
     "laplab.commands.run",
+    "laplab.commands.drive",
     "laplab.commands.tracks",
     "laplab.commands.reward",
     "laplab.commands.train",

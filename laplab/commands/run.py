@@ -1,56 +1,52 @@
-"""``laplab run``: the main job. Drives laplab's built-in pure-pursuit policy around a track, scoring it
-with a reward function, and prints lap time, progress and total reward per lap."""
+"""``laplab run``: the main job. Trains a model on a built-in track with the defaults, evaluates it in
+3 trials, prints the summary with the gap to the optimal lap, and writes the report."""
 
 from __future__ import annotations
 
 import argparse
-
-import numpy as np
-from rich.console import Console
-from rich.table import Table
+import time
 
 
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("run", help="drive the built-in policy round a track and score it")
+    parser = subparsers.add_parser("run", help="train a model with the defaults, evaluate it, write its report")
+    parser.add_argument("--name", default=None, help="model name (default: run-<date>-<time>)")
     parser.add_argument("--track", default=None, help="track name or .npy path (default: classic_2018)")
     parser.add_argument("--reward", default=None, help="reward_function.py (default: follow the centre line)")
-    parser.add_argument("--laps", type=int, default=3, help="laps to drive, each from the round-robin start")
-    parser.add_argument("--speed", type=float, default=1.5, help="target speed of the built-in policy, m/s")
+    parser.add_argument("--max-time", default="5m", help="training time limit (default 5m; DeepRacer's "
+                                                         "average-score stop condition may end it sooner)")
+    parser.add_argument("--trials", type=int, default=3, help="evaluation trials (default 3)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--no-report", action="store_true", help="skip the HTML report")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from laplab.cli import UserError
-    from laplab.env.vector import DEFAULT_REWARD, resolve_reward_function
-    from laplab.reward.params import ParamsBuilder, rewards_for
-    from laplab.sim.pure_pursuit import PurePursuit, PurePursuitParams
-    from laplab.sim.simulator import Simulator
-    from laplab.sim.state import IN_PROGRESS, STATUS_NAMES
-    from laplab.track.registry import DEFAULT_TRACK, load_track
+    from dataclasses import replace
+    from pathlib import Path
 
-    if args.laps < 1 or not 0.1 <= args.speed <= 4.0:
-        raise UserError("--laps must be >= 1 and --speed within the car's 0.1-4 m/s")
+    from rich.console import Console
+
+    from laplab.commands.evaluate import _print_result
+    from laplab.commands.train import _run_trainer
+    from laplab.evaluate.trials import EvaluationSettings, evaluate_model
+    from laplab.train.config import TrainConfig, parse_duration
+    from laplab.train.jobs import create_training
+    from laplab.track.registry import DEFAULT_TRACK
+
     console = Console(highlight=False, soft_wrap=True)
-    track = load_track(args.track or DEFAULT_TRACK)
-    reward_fn = resolve_reward_function(args.reward or DEFAULT_REWARD)
-    sim = Simulator(track, args.laps)  # one car per lap, at consecutive round-robin starts
-    sim.reset()
-    policy = PurePursuit(track.centerline, params=PurePursuitParams(speed=args.speed))
-    params = ParamsBuilder(sim)
-    total_reward = np.zeros(args.laps)
-    while (sim.state.status == IN_PROGRESS).any():
-        steer, speed = policy.act(sim.poses(), sim.state.speed)
-        cars = np.flatnonzero(sim.step(steer, speed))
-        total_reward[cars] += rewards_for(params, reward_fn, cars)[0]
-    st = sim.state
-    table = Table(title=f"built-in pure-pursuit policy on {track.name} ({track.length:.2f} m, "
-                        f"{track.nominal_width:.3f} m wide) at {args.speed} m/s")
-    for col in ("lap", "start", "status", "progress %", "lap time s", "steps", "total reward"):
-        table.add_column(col, justify="right")
-    for i in range(args.laps):
-        start = f"{100 * sim.episode.round_robin_advance * i % 100:.0f}%"
-        lap_time = f"{st.lap_time[i]:.3f}" if st.lap_time[i] > 0 else "-"
-        table.add_row(str(i + 1), start, STATUS_NAMES[st.status[i]], f"{st.progress[i]:.1f}", lap_time,
-                      str(st.steps[i]), f"{total_reward[i]:.2f}")
-    console.print(table)
+    name = args.name or time.strftime("run-%Y%m%d-%H%M%S")
+    config = replace(TrainConfig(), track=args.track or DEFAULT_TRACK, max_time_s=parse_duration(args.max_time),
+                     seed=args.seed, reward_path=str(Path(args.reward).resolve()) if args.reward else None)
+    console.rule(f"1/3 train {name}")
+    trainer = create_training(name, config)
+    code = _run_trainer(trainer, console, quiet=False)
+    if code != 0:
+        return code
+    console.rule(f"2/3 evaluate {name}")
+    result, stamp = evaluate_model(name, EvaluationSettings(trials=args.trials, seed=args.seed))
+    _print_result(console, result, stamp, trainer.folder)
+    if not args.no_report:
+        console.rule(f"3/3 report {name}")
+        from laplab.analysis.report import build_report
+        console.print(f"report: {build_report(trainer.folder)}")
     return 0
