@@ -8,13 +8,10 @@ import gymnasium as gym
 import numpy as np
 
 from laplab.env.metadata import ModelMetadata
-from laplab.env.observations import ObservationBuilder
-from laplab.env.vector import DEFAULT_REWARD, RewardSpec, resolve_metadata, resolve_reward_function
-from laplab.reward.params import ParamsBuilder
-from laplab.sim.simulator import Simulator
+from laplab.env.vector import DEFAULT_REWARD, RewardSpec, _reset_episodes, _setup_episodes
 from laplab.sim.state import IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES, TIME_UP, EpisodeParams
 from laplab.track.geometry import Track
-from laplab.track.registry import DEFAULT_TRACK, load_track
+from laplab.track.registry import DEFAULT_TRACK
 from laplab.vehicle.params import DEEPRACER, VehicleParams
 
 
@@ -47,22 +44,13 @@ class TimeTrialEnv(gym.Env):
     def __init__(self, track: Track | str = DEFAULT_TRACK, reward_function: RewardSpec = DEFAULT_REWARD,
                  model_metadata: ModelMetadata | dict | str | None = None, vehicle: VehicleParams = DEEPRACER,
                  episode: EpisodeParams = EpisodeParams(), stack_size: int = 1, seed: int | None = None):
-        self.model_metadata = resolve_metadata(model_metadata)
-        self.track = track if isinstance(track, Track) else load_track(track)
-        self.sim = Simulator(self.track, 1, vehicle, episode)
-        self.action_spec = self.model_metadata.action_space
-        self.reward_fn = resolve_reward_function(reward_function, self.action_spec.max_speed)
-        self._params = ParamsBuilder(self.sim)
-        self._observations = ObservationBuilder(self.sim, self.model_metadata, seed=seed, stack_size=stack_size)
+        _setup_episodes(self, 1, track, reward_function, model_metadata, vehicle, episode, stack_size, seed)
         self.observation_space = self._observations.single_space
         self.action_space = self.action_spec.gym_space()
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
-        if seed is not None:
-            self.sim._episodes_done[:] = 0
-        options = options or {}
-        self.sim.reset(ndist=options.get("start_ndist"), direction=options.get("direction"))
+        _reset_episodes(self.sim, seed, options)
         return self._observe(), self._info()
 
     def step(self, action):

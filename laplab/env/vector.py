@@ -44,6 +44,25 @@ def resolve_metadata(metadata: ModelMetadata | dict | str | os.PathLike | None) 
     return load_model_metadata(metadata)
 
 
+def _setup_episodes(env, num_cars: int, track, reward_function, model_metadata, vehicle, episode, stack_size, seed) -> None:
+    """What both envs hold: metadata, track, simulator, action spec, reward function, params and observations."""
+    env.model_metadata = resolve_metadata(model_metadata)
+    env.track = track if isinstance(track, Track) else load_track(track)
+    env.sim = Simulator(env.track, num_cars, vehicle, episode)
+    env.action_spec = env.model_metadata.action_space
+    env.reward_fn = resolve_reward_function(reward_function, env.action_spec.max_speed)
+    env._params = ParamsBuilder(env.sim)
+    env._observations = ObservationBuilder(env.sim, env.model_metadata, seed=seed, stack_size=stack_size)
+
+
+def _reset_episodes(sim: Simulator, seed: int | None, options: dict[str, Any] | None) -> None:
+    """Reset every car; a seed restarts the round-robin start schedule."""
+    if seed is not None:
+        sim._episodes_done[:] = 0
+    options = options or {}
+    sim.reset(ndist=options.get("start_ndist"), direction=options.get("direction"))
+
+
 class TimeTrialVectorEnv(gym.vector.VectorEnv):
     """N cars on one track, each in its own DeepRacer time-trial episode.
 
@@ -78,15 +97,9 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
                  model_metadata: ModelMetadata | dict | str | None = None, vehicle: VehicleParams = DEEPRACER,
                  episode: EpisodeParams = EpisodeParams(), keep_params: bool = True, stack_size: int = 1,
                  seed: int | None = None):
-        self.model_metadata = resolve_metadata(model_metadata)
-        self.track = track if isinstance(track, Track) else load_track(track)
-        self.sim = Simulator(self.track, num_envs, vehicle, episode)
+        _setup_episodes(self, num_envs, track, reward_function, model_metadata, vehicle, episode, stack_size, seed)
         self.num_envs = int(num_envs)
-        self.action_spec = self.model_metadata.action_space
-        self.reward_fn = resolve_reward_function(reward_function, self.action_spec.max_speed)
         self.keep_params = keep_params
-        self._params = ParamsBuilder(self.sim)
-        self._observations = ObservationBuilder(self.sim, self.model_metadata, seed=seed, stack_size=stack_size)
         self.single_observation_space = self._observations.single_space
         self.single_action_space = self.action_spec.gym_space()
         self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, self.num_envs)
@@ -96,10 +109,7 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Reset every car. ``options``: ``start_ndist`` (float or (N,)), ``direction`` (0/1 or (N,))."""
         super().reset(seed=seed)
-        if seed is not None:
-            self.sim._episodes_done[:] = 0
-        options = options or {}
-        self.sim.reset(ndist=options.get("start_ndist"), direction=options.get("direction"))
+        _reset_episodes(self.sim, seed, options)
         return self._observe_copy(), self._base_info()
 
     def step(self, actions):

@@ -70,24 +70,17 @@ class RewardFunction:
 
     def __call__(self, params: Mapping[str, Any]) -> float:
         """Reward of one step, validated: finite float in [-1e5, 1e5]."""
-        args = self._arguments(params)
-        try:
-            value = self.function(*args)
-        except (Exception, SystemExit) as exc:
-            raise self._raised_error(exc, params) from exc
-        reward, why_invalid = _checked_reward(value)
-        if why_invalid:
-            raise self._return_error(value, params, why_invalid) from None
-        return reward
+        return self._invoke(self._arguments(params), params)
 
     def call_fresh(self, params: dict) -> float:
         """:meth:`__call__` for a params dict built for this call alone, with its own ``waypoints``
         list of tuples (as :class:`laplab.reward.params.ParamsBuilder` makes them): skips the
         defensive copy, which costs more than a typical reward function."""
-        if self.is_legacy:
-            return self(params)
+        return self(params) if self.is_legacy else self._invoke((params,), params)
+
+    def _invoke(self, args: tuple, params: Mapping[str, Any]) -> float:
         try:
-            value = self.function(params)
+            value = self.function(*args)
         except (Exception, SystemExit) as exc:
             raise self._raised_error(exc, params) from exc
         reward, why_invalid = _checked_reward(value)
