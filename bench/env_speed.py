@@ -49,7 +49,7 @@ def time_simulator(num_cars: int, steps: int, repeats: int) -> tuple[float, floa
     for _ in range(repeats + 1):
         t0 = time.perf_counter()
         for k in range(steps):
-            done = sim.step(steer[k], speed)
+            sim.step(steer[k], speed)
             finished = sim.state.status != 0
             if finished.any():
                 sim.reset(finished)

@@ -23,7 +23,6 @@ import math
 from dataclasses import dataclass
 
 import numba as nb
-import numpy as np
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ from laplab.env.vector import DEFAULT_REWARD
 from laplab.reward.loader import RewardFunction, load_reward_function
 from laplab.reward.validate import validate_reward_function
 from laplab.store.checkpoints import CheckpointStore
-from laplab.store.layout import ModelFolder, model_folder, validate_model_name
+from laplab.store.layout import model_folder, validate_model_name
 from laplab.train.config import TrainConfig
 from laplab.train.trainer import Trainer, load_checkpoint, load_weights_only
 from laplab.track.registry import load_track
