@@ -255,19 +255,6 @@ def load_training_history(folder: ModelFolder) -> TrainingHistory:
         episodes=episodes)
 
 
-def moving_average(values: np.ndarray, window: int) -> np.ndarray:
-    """Trailing mean over the last ``window`` finite values at each index (NaN-aware); shape (I,)."""
-    values = np.asarray(values, dtype=np.float64)
-    finite = np.isfinite(values)
-    sums = np.cumsum(np.where(finite, values, 0.0))
-    counts = np.cumsum(finite)
-    window = max(int(window), 1)
-    sums[window:] = sums[window:] - sums[:-window].copy()
-    counts[window:] = counts[window:] - counts[:-window].copy()
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
-
-
 # ------------------------------------------------------------------------------------- simtrace
 
 
@@ -326,7 +313,11 @@ def last_episodes(trace: Trace, count: int) -> Trace:
         return trace
     keys = trace.iteration.astype(np.int64) * 10**9 + trace.episode
     unique = np.unique(keys)
-    keep = np.isin(keys, unique[-max(int(count), 1):])
+    return select_rows(trace, np.isin(keys, unique[-max(int(count), 1):]))
+
+
+def select_rows(trace: Trace, keep: np.ndarray) -> Trace:
+    """The rows of ``trace`` where the (n,) bool mask ``keep`` is True."""
     return Trace(**{name: getattr(trace, name)[keep] for name in Trace.__dataclass_fields__})
 
 

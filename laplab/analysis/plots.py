@@ -15,7 +15,7 @@ from matplotlib.collections import LineCollection
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 
-from laplab.analysis.loaders import Trace, TrainingHistory, moving_average
+from laplab.analysis.loaders import Trace, TrainingHistory
 from laplab.track.geometry import Track
 from laplab.track.plot import draw_track
 
@@ -68,6 +68,20 @@ def _line(ax: Axes, x: np.ndarray, y: np.ndarray, **kwargs) -> None:
 
 
 # ------------------------------------------------------------------------------------ training
+
+
+def moving_average(values: np.ndarray, window: int) -> np.ndarray:
+    """Mean of the finite values among the last ``window`` entries at each index (NaN where there are
+    none); shape (I,)."""
+    values = np.asarray(values, dtype=np.float64)
+    finite = np.isfinite(values)
+    sums = np.cumsum(np.where(finite, values, 0.0))
+    counts = np.cumsum(finite)
+    window = max(int(window), 1)
+    sums[window:] = sums[window:] - sums[:-window].copy()
+    counts[window:] = counts[window:] - counts[:-window].copy()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
 
 
 def _window(iterations: int, style: PlotStyle) -> int:

@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from laplab.analysis.loaders import (Evaluation, ReportDataError, Trace, TrainingHistory, last_episodes,
+from laplab.analysis.loaders import (Evaluation, ReportDataError, TrainingHistory, last_episodes,
                                      load_evaluations, load_training_history, load_training_traces,
-                                     traced_iterations)
+                                     select_rows, traced_iterations)
 from laplab.analysis.plots import (PlotStyle, iteration_range_text, plot_action_usage, plot_evaluation,
                                    plot_losses, plot_reward_map, reward_map_cell, plot_training, plot_trajectories)
 from laplab.store.atomic import atomic_write_text, read_json
@@ -198,7 +198,7 @@ def _track_sections(context: ReportContext) -> list[str]:
     trajectories = reward_map = no_track
     if track is not None:
         recent_iterations = iterations[-settings.recent_iterations:]
-        recent = last_episodes(_rows(trace, np.isin(trace.iteration, recent_iterations)),
+        recent = last_episodes(select_rows(trace, np.isin(trace.iteration, recent_iterations)),
                                settings.trajectory_episodes)
         episodes = len(np.unique(recent.iteration * 10**9 + recent.episode))
         title = f"{episodes} training episodes of {iteration_range_text(recent_iterations)}, coloured by speed"
@@ -216,10 +216,6 @@ def _track_sections(context: ReportContext) -> list[str]:
                     if kind == "discrete" else
                     f"Steering angle x speed of the actions taken during training {usage_text}.")
     return [_section(titles[0], trajectories), _section(titles[1], usage), _section(titles[2], reward_map)]
-
-
-def _rows(trace: Trace, keep: np.ndarray) -> Trace:
-    return Trace(**{name: getattr(trace, name)[keep] for name in Trace.__dataclass_fields__})
 
 
 # --------------------------------------------------------------------------------- evaluations
