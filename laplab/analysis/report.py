@@ -69,7 +69,8 @@ def _load_track(name: str | None, reverse: bool) -> tuple[Track | None, str | No
     from laplab.track.geometry import TrackError
     from laplab.track.registry import load_track
     if not name:
-        return None, "the model folder names no track (laplab.json lacks 'track')"
+        return None, ("the model folder names no track (laplab.json lacks 'track'); "
+                      "`laplab report MODEL --track NAME` draws on the track you name")
     try:
         return load_track(name, reverse=reverse), None
     except (TrackError, FileNotFoundError, ValueError) as exc:
