@@ -212,7 +212,7 @@ def _status_tokens(values: np.ndarray) -> np.ndarray:
             raise _column_error("episode_status", "integer statuses index EPISODE_STATUSES (0.."
                                 f"{len(EPISODE_STATUSES) - 1}); got {values.min()}..{values.max()}")
         return values.astype(np.int64) + 2
-    unique, inverse = np.unique(values.astype(str), return_inverse=True)
+    unique, inverse = np.unique(np.array(values.tolist(), dtype=str), return_inverse=True)  # any string dtype
     lookup = {status: index + 2 for index, status in enumerate(EPISODE_STATUSES)}
     unknown = [status for status in unique.tolist() if status not in lookup]
     if unknown:

@@ -144,3 +144,19 @@ def test_number_text_parity_with_python_formatting(simtrace_columns):
     special = simtrace_columns(0, [3], continuous=False)
     special["X"] = np.array([np.nan, np.inf, -np.inf])
     assert [line.split(",")[2] for line in format_rows(special).splitlines()] == ["nan", "inf", "-inf"]
+
+
+def test_rows_read_back_can_be_written_again(tmp_path):
+    """read_simtrace's columns (episode_status as numpy StringDType) feed SimtraceWriter unchanged."""
+    from laplab.store.simtrace import SimtraceWriter, read_simtrace
+    columns = {"episode": np.array([0, 0]), "steps": np.array([1, 2]), "X": np.zeros(2), "Y": np.zeros(2),
+               "yaw": np.zeros(2), "steer": np.zeros(2), "throttle": np.zeros(2), "action": np.array([0, 1]),
+               "reward": np.ones(2), "done": np.array([False, True]), "all_wheels_on_track": np.array([True, True]),
+               "progress": np.array([1.0, 2.0]), "closest_waypoint": np.array([0, 1]), "track_len": np.ones(2),
+               "tstamp": np.ones(2), "episode_status": np.array(["in_progress", "off_track"])}
+    with SimtraceWriter(tmp_path / "a.csv") as writer:
+        writer.write_rows(columns)
+    rows = read_simtrace(tmp_path / "a.csv")
+    with SimtraceWriter(tmp_path / "b.csv") as writer:
+        writer.write_rows(rows)
+    assert read_simtrace(tmp_path / "b.csv")["episode_status"].tolist() == ["in_progress", "off_track"]
