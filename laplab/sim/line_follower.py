@@ -1,0 +1,231 @@
+"""Drive a race line in the simulator: a batched curvature-feedforward controller and lap runs.
+
+The simulator's car is a kinematic bicycle on the rear axle, so the path its origin follows has
+curvature exactly ``tan(steer) / wheelbase``. :class:`LineFollower` therefore steers with the
+line's own curvature (feedforward) plus a small correction for the distance and angle to the line:
+
+    correction = - lateral_gain * e - heading_gain * psi
+    kappa_cmd  = kappa_line(s + curvature_preview * v dt) + correction
+    steer      = atan(kappa_cmd * wheelbase), clipped to the steering limit
+    speed      = min(v_line(s_v), sqrt(a_lat / |kappa_line(s_v) + correction|)),  s_v = s + speed_preview * v dt
+
+where ``s`` (m) is the arc length of the origin's projection onto the line, ``e`` (m) its signed
+distance from the line (left positive), ``psi`` (rad) the yaw minus the line's (interpolated) heading
+there, ``v`` (m/s) the measured speed, ``dt`` the 1/15 s decision and ``a_lat`` the car's grip.
+A command is held for a whole decision: the steering should match the line's curvature half way
+through it, and the speed the line's speed where the step ends. In arc length the error obeys
+``e'' + heading_gain e' + lateral_gain e = 0`` (small angles), a damped oscillator that settles within
+a metre or two. The speed cap matters because a race line's speeds use all the grip: at the limit a
+correction on top saturates the tyres (the car understeers and drifts wide) unless the car slows
+to where the curvature it then needs fits within the grip. Pure pursuit, by contrast, aims at a
+chord of the line and cuts every corner.
+
+:func:`drive_line` starts cars on the line's first point (at rest or at the line's speed there) and
+drives one lap; :func:`standing_start_lap_time` is the lap time the line's speed plan predicts when
+the car starts from rest.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from laplab.sim.simulator import Simulator
+from laplab.sim.state import IN_PROGRESS, EpisodeParams
+from laplab.track.geometry import Track
+from laplab.vehicle.params import DEEPRACER, VehicleParams
+
+
+@dataclass(frozen=True)
+class LineFollowerParams:
+    """Gains of :class:`LineFollower`.
+
+    lateral_gain: 1/m^2, commanded curvature per metre of lateral error.
+    heading_gain: 1/m, commanded curvature per radian of heading error.
+    curvature_preview: decision steps (of ``v dt`` metres) ahead at which the line's curvature is read.
+    speed_preview: decision steps ahead at which the line's speed is read (braking starts in time).
+    grip_speed_cap: slow down so that the corrected curvature stays within the grip.
+    """
+
+    lateral_gain: float = 4.0
+    heading_gain: float = 1.5
+    curvature_preview: float = 0.5
+    speed_preview: float = 1.0
+    grip_speed_cap: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("lateral_gain", "heading_gain", "curvature_preview", "speed_preview"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"LineFollowerParams.{name} must be a finite number >= 0, got {value!r}")
+
+
+def _closed_path(points: np.ndarray, speeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Validated (M, 2) points and (M,) speeds with a repeated closing row dropped."""
+    points = np.asarray(points, dtype=np.float64)
+    speeds = np.asarray(speeds, dtype=np.float64).reshape(-1)
+    if points.ndim != 2 or points.shape[1] != 2 or points.shape[0] < 4:
+        raise ValueError(f"LineFollower: points must be a closed path of shape (M, 2), M >= 4, got {points.shape}")
+    if speeds.shape[0] != points.shape[0]:
+        raise ValueError(f"LineFollower: expected one speed per point ({points.shape[0]}), got {speeds.shape[0]}")
+    if not (np.isfinite(points).all() and np.isfinite(speeds).all()) or (speeds < 0).any():
+        raise ValueError("LineFollower: points and speeds must be finite, speeds >= 0 m/s")
+    if np.allclose(points[0], points[-1], atol=1e-9, rtol=0.0):
+        points, speeds = points[:-1], speeds[:-1]
+    keep = np.linalg.norm(points - np.roll(points, -1, axis=0), axis=1) > 1e-9
+    return np.ascontiguousarray(points[keep]), np.ascontiguousarray(speeds[keep])
+
+
+def menger_curvature(points: np.ndarray) -> np.ndarray:
+    """(M,) signed curvature (1/m, positive = left) of each point of the closed path (M, 2) and its
+    two neighbours; exact on a circle."""
+    a, b, c = np.roll(points, 1, axis=0), points, np.roll(points, -1, axis=0)
+    ab, bc = b - a, c - b
+    cross = ab[:, 0] * bc[:, 1] - ab[:, 1] * bc[:, 0]
+    denom = np.linalg.norm(ab, axis=1) * np.linalg.norm(bc, axis=1) * np.linalg.norm(c - a, axis=1)
+    return np.where(denom > 0, 2.0 * cross / np.maximum(denom, 1e-300), 0.0)
+
+
+class LineFollower:
+    """Follows a closed line with a speed plan, for N cars at once (control law: module docstring).
+
+    points: (M, 2) m, the path of the model origin (rear-axle centre), closed (row 0 == row M-1) or
+    not; speeds: (M,) m/s planned at each point; vehicle: the car being driven.
+    """
+
+    def __init__(self, points: np.ndarray, speeds: np.ndarray, vehicle: VehicleParams = DEEPRACER,
+                 params: LineFollowerParams = LineFollowerParams()):
+        self.points, self.speeds = _closed_path(points, speeds)
+        self.vehicle, self.params = vehicle, params
+        closed = np.vstack([self.points, self.points[:1]])
+        self._seg_start = self.points
+        self._seg_vec = closed[1:] - closed[:-1]
+        self._seg_len = np.linalg.norm(self._seg_vec, axis=1)
+        self._seg_dir = self._seg_vec / self._seg_len[:, None]
+        self.arc = np.concatenate([[0.0], np.cumsum(self._seg_len)])  # (M+1,)
+        self.length = float(self.arc[-1])
+        self.curvature = menger_curvature(self.points)
+        self._closed_curvature = np.append(self.curvature, self.curvature[0])
+        self._closed_speeds = np.append(self.speeds, self.speeds[0])
+        # Heading at each point (central difference), interpolated within segments: the segments'
+        # own headings jump by kappa * ds at every point, which the heading gain would turn into noise.
+        chord = np.roll(self.points, -1, axis=0) - np.roll(self.points, 1, axis=0)
+        self.heading = np.arctan2(chord[:, 1], chord[:, 0])
+        self._heading_step = np.mod(np.roll(self.heading, -1) - self.heading + np.pi, 2.0 * np.pi) - np.pi
+
+    @property
+    def start_pose(self) -> np.ndarray:
+        """(3,) pose (x, y, yaw) on the line's first point, heading along it."""
+        return np.array([self.points[0, 0], self.points[0, 1], self.heading[0]])
+
+    def project(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Arc length s (N,) m, lateral error e (N,) m (left of the line positive) and heading error
+        psi (N,) rad of the model origins of poses (N, 3) against the nearest line segment.
+
+        Segments pointing against the car's yaw are passed over, so a car beside a hairpin does not
+        snap to the other leg."""
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        n = poses.shape[0]
+        segment, t = np.empty(n, dtype=np.int64), np.empty(n)
+        heading = np.stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])], axis=1)
+        for lo in range(0, n, 256):  # chunks bound the (chunk, M) temporaries
+            rel = poses[lo:lo + 256, None, :2] - self._seg_start[None]
+            frac = np.clip((rel * self._seg_vec[None]).sum(-1) / self._seg_len ** 2, 0.0, 1.0)
+            gap = rel - frac[..., None] * self._seg_vec[None]
+            dist_sq = (gap * gap).sum(-1)
+            against = (heading[lo:lo + 256, None, :] * self._seg_dir[None]).sum(-1) < 0.0
+            best = np.argmin(dist_sq + 1e6 * against, axis=1)
+            segment[lo:lo + 256], t[lo:lo + 256] = best, frac[np.arange(best.size), best]
+        direction = self._seg_dir[segment]
+        rel = poses[:, :2] - self._seg_start[segment]
+        lateral = direction[:, 0] * rel[:, 1] - direction[:, 1] * rel[:, 0]
+        psi = poses[:, 2] - (self.heading[segment] + t * self._heading_step[segment])
+        psi = np.mod(psi + np.pi, 2.0 * np.pi) - np.pi
+        return self.arc[segment] + t * self._seg_len[segment], lateral, psi
+
+    def _curvature_at(self, arc: np.ndarray) -> np.ndarray:
+        return np.interp(np.mod(arc, self.length), self.arc, self._closed_curvature)
+
+    def act(self, poses: np.ndarray, speeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Commands for poses (N, 3) of the model origins and measured speeds (N,) m/s:
+        (steering angle (N,) rad, speed (N,) m/s)."""
+        p, v = self.params, self.vehicle
+        s, lateral, psi = self.project(poses)
+        step = np.maximum(np.asarray(speeds, dtype=np.float64).reshape(-1), 0.0) * v.dt
+        correction = -p.lateral_gain * lateral - p.heading_gain * psi
+        kappa = self._curvature_at(s + p.curvature_preview * step) + correction
+        steer = np.clip(np.arctan(kappa * v.wheelbase), -v.max_steering, v.max_steering)
+        speed_arc = s + p.speed_preview * step
+        speed = np.interp(np.mod(speed_arc, self.length), self.arc, self._closed_speeds)
+        if p.grip_speed_cap:
+            needed = np.abs(self._curvature_at(speed_arc) + correction)
+            speed = np.minimum(speed, np.sqrt(v.max_lateral_acceleration / np.maximum(needed, 1e-9)))
+        return steer, speed
+
+
+def standing_start_lap_time(arc_length: np.ndarray, speeds: np.ndarray, max_acceleration: float) -> float:
+    """Lap time (s) of a closed speed plan when the car starts at rest at point 0 and then keeps to it.
+
+    arc_length (M,) m with the closing point ([-1] = lap length), speeds (M,) m/s (closed plan, so
+    it already meets the braking limit everywhere). Starting from rest the speed is
+    ``min(plan, sqrt(2 a s))``: the plan is consistent with full acceleration from any of its points,
+    so nothing but the launch itself changes; segments take ``2 ds / (v_i + v_j)``.
+    """
+    arc = np.asarray(arc_length, dtype=np.float64)
+    launched = np.minimum(np.asarray(speeds, dtype=np.float64), np.sqrt(2.0 * max_acceleration * arc))
+    return float(np.sum(2.0 * np.diff(arc) / np.maximum(launched[:-1] + launched[1:], 1e-12)))
+
+
+@dataclass(frozen=True)
+class LineDrive:
+    """One simulated lap per car: lap_time (N,) s (0 when no lap), status (N,) status codes,
+    max_lateral_error (N,) m largest distance of the origin from the line, min_wheels_on (N,) fewest
+    wheels on the track at any step."""
+
+    lap_time: np.ndarray
+    status: np.ndarray
+    max_lateral_error: np.ndarray
+    min_wheels_on: np.ndarray
+
+
+def start_on_line(sim: Simulator, cars: np.ndarray, follower: LineFollower, flying: np.ndarray) -> None:
+    """Start new episodes for ``cars`` with their origin on the line's first point, heading along it.
+
+    ``flying`` (K,) bool: at the line's speed there, with the steering its curvature needs (a flying
+    lap), else at rest. The lap is counted from this pose: the episode's start arc is moved to the
+    projection of the car's reference point, so progress starts at 0 and the lap ends when the
+    reference point crosses the same spot again.
+    """
+    cars = np.asarray(cars, dtype=np.int64).reshape(-1)
+    flying = np.broadcast_to(np.asarray(flying, dtype=bool), cars.shape)
+    sim.reset(np.isin(np.arange(sim.num_cars), cars), ndist=0.0)
+    speed = np.where(flying, follower.speeds[0], 0.0)
+    steer = np.where(flying, math.atan(follower.curvature[0] * sim.vehicle.wheelbase), 0.0)
+    sim.place(cars, np.tile(follower.start_pose, (cars.size, 1)), speed=speed, steer=steer)
+    st = sim.state
+    st.start_arc[cars], st.travel[cars], st.progress[cars] = st.arc[cars], 0.0, 0.0
+
+
+def drive_line(track: Track, points: np.ndarray, speeds: np.ndarray, flying: np.ndarray,
+               vehicle: VehicleParams = DEEPRACER, params: LineFollowerParams = LineFollowerParams(),
+               max_steps: int = 20_000) -> LineDrive:
+    """Drive one lap of the line (points (M, 2), speeds (M,)) per entry of ``flying`` (N,) bool with a
+    :class:`LineFollower` in a :class:`Simulator` on ``track``; see :func:`start_on_line`."""
+    flying = np.asarray(flying, dtype=bool).reshape(-1)
+    follower = LineFollower(points, speeds, vehicle, params)
+    sim = Simulator(track, flying.size, vehicle, EpisodeParams(round_robin_advance=0.0, max_steps=max_steps),
+                    state_sensor=None)
+    cars = np.arange(flying.size)
+    start_on_line(sim, cars, follower, flying)
+    st = sim.state
+    max_error, min_wheels = np.zeros(flying.size), st.wheels_on.copy()
+    while (st.status == IN_PROGRESS).any():
+        steer, speed = follower.act(sim.poses(), st.speed)
+        stepped = sim.step(steer, speed)
+        _, lateral, _ = follower.project(sim.poses())
+        max_error = np.where(stepped, np.maximum(max_error, np.abs(lateral)), max_error)
+        min_wheels = np.where(stepped, np.minimum(min_wheels, st.wheels_on), min_wheels)
+    return LineDrive(lap_time=st.lap_time.copy(), status=st.status.copy(), max_lateral_error=max_error,
+                     min_wheels_on=min_wheels)
