@@ -24,7 +24,7 @@ import numpy as np
 
 from laplab.sensors.camera import (FRONT_FACING_CAMERA, HUMAN_CAMERA, STEREO_CAMERAS, render_camera,
                                    render_cameras)
-from laplab.sensors.texture import TextureParams, build_track_texture
+from laplab.sensors.texture import build_track_texture
 
 TRACKS = Path(__file__).resolve().parents[1].parent / "shared" / "reference-tracks"
 
@@ -103,6 +103,33 @@ def camera_rows(route: np.ndarray, runs: int, seconds: float) -> list[Row]:
     return rows
 
 
+def lidar_rows(route: np.ndarray, runs: int, seconds: float) -> list[Row]:
+    """Lidar scans/s (64 beams against the borders) at N = 1, 64, 256."""
+    from laplab.sensors.lidar import DEFAULT_LIDAR, LidarWalls, scan
+    walls = LidarWalls.from_track(route)
+    rng = np.random.default_rng(1)
+    rows = []
+    for n in (1, 64, 256):
+        poses = poses_on_track(route, n, rng)
+        threaded, one_core = threaded_and_one_core(lambda: scan(walls, poses, DEFAULT_LIDAR, rng), runs, seconds)
+        rows.append(Row("lidar", "64 beams, noise 0.01 m", n, n / threaded, 1e6 * threaded, n / one_core))
+    return rows
+
+
+def camera_env_rows(runs: int, seconds: float) -> list[Row]:
+    """Full env steps/s with the camera observation: TimeTrialVectorEnv.step (dynamics, projection,
+    termination, follow-the-centre-line reward, render) on the default built-in track."""
+    from laplab.env import TimeTrialVectorEnv
+    rows = []
+    for n in (64, 256):
+        env = TimeTrialVectorEnv(n, model_metadata={"sensor": ["FRONT_FACING_CAMERA"]}, keep_params=False)
+        env.reset(seed=0)
+        actions = np.random.default_rng(0).integers(0, env.single_action_space.n, n)
+        threaded, one_core = threaded_and_one_core(lambda: env.step(actions), runs, seconds)
+        rows.append(Row("env", "VectorEnv.step, FRONT_FACING_CAMERA", n, n / threaded, 1e6 * threaded, n / one_core))
+    return rows
+
+
 def carracing_steps_per_second(runs: int, seconds: float) -> float | None:
     """Median env.step/s of Gymnasium's CarRacing-v3 with random actions (None without Box2D)."""
     try:
@@ -147,7 +174,8 @@ def main() -> None:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"track {args.track}; numba threads {numba.get_num_threads()}; load average {load:.2f} "
           f"on {os.cpu_count()} cores")
-    rows = camera_rows(route, args.runs, args.seconds)
+    rows = camera_rows(route, args.runs, args.seconds) + lidar_rows(route, args.runs, args.seconds)
+    rows += camera_env_rows(args.runs, args.seconds)
     peer = carracing_steps_per_second(args.runs, args.seconds)
     print_table(rows, peer)
 
