@@ -27,6 +27,8 @@ def register(subparsers) -> None:
     train.add_argument("--name", help="name of the new model (letters, digits, hyphens)")
     train.add_argument("--resume", metavar="NAME", help="continue an interrupted job from its last checkpoint")
     _add_job_options(train, defaults=True)
+    train.add_argument("--domain-randomization", action="store_true",
+                       help="randomise camera frames in training (lighting, colours, noise, jitter) for the car")
     train.add_argument("--quiet", action="store_true", help="print only the summary")
     train.set_defaults(func=run_train)
     clone = subparsers.add_parser("clone", help="start a new model from another model's weights")
@@ -113,6 +115,7 @@ def run_train(args: argparse.Namespace) -> int:
         if not args.name:
             raise UserError("name the new model with --name NAME (or continue one with --resume NAME)")
         values = {k: v for k, v in _overrides(args).items() if v is not None}
+        values["domain_randomization"] = bool(args.domain_randomization)
         trainer = create_training(args.name, replace(TrainConfig(), **values))
     return _run_trainer(trainer, console, args.quiet)
 

@@ -26,15 +26,20 @@ class ObservationBuilder:
     stacks that many consecutive camera frames as channels, newest last.
 
     Camera observations are ``(C, 120, 160)`` uint8, channels first: C = cameras x stack_size
-    (stereo: left, right per frame).
+    (stereo: left, right per frame). ``randomization`` (a
+    :class:`laplab.sensors.randomize.RandomizationParams` with ``enabled=True``) applies domain
+    randomisation to every camera frame: colour variants of the scene, brightness, contrast, gamma,
+    noise, blur and camera-pose jitter, drawn per car and frame from the seeded generator.
     """
 
     def __init__(self, sim: Simulator, metadata: ModelMetadata, seed: int | None = None, sensor_noise: bool = True,
-                 stack_size: int = 1):
+                 stack_size: int = 1, randomization=None):
         if int(stack_size) < 1:
             raise ValueError(f"stack_size must be >= 1, got {stack_size!r}")
         self.sim = sim
         self.stack_size = int(stack_size)
+        self.randomization = randomization if randomization is not None and randomization.enabled else None
+        self._camera_rng = np.random.default_rng(seed)
         self.sensors = metadata.sensors
         self.rng = np.random.default_rng(seed) if sensor_noise else None
         self._parts: dict[str, tuple[gym.spaces.Box, Reader]] = {}
@@ -64,9 +69,20 @@ class ObservationBuilder:
 
     def _camera_part(self, sensor: str) -> tuple[gym.spaces.Box, Reader]:
         from laplab.sensors.camera import camera_for_sensor, render_cameras
-        from laplab.sensors.texture import build_track_texture
+        from laplab.sensors.randomize import build_randomized_texture, render_randomized, sample_randomization
+        from laplab.sensors.texture import TextureParams, build_track_texture
         cameras = camera_for_sensor(sensor)
-        texture = build_track_texture(self.sim.track)
+        rand, rng = self.randomization, self._camera_rng
+        texture = (build_track_texture(self.sim.track) if rand is None
+                   else build_randomized_texture(self.sim.track, TextureParams(), rand, rng))
+
+        def render(poses_now: np.ndarray) -> np.ndarray:  # (K, H, W, cameras) uint8
+            if rand is None:
+                return render_cameras(texture, poses_now, cameras)
+            draw = sample_randomization(rng, len(poses_now), rand, cameras[0], texture.num_variants)
+            frames = render_randomized(texture, poses_now, cameras, draw, rng)
+            return frames if frames.ndim == 4 else frames[..., None]
+
         height, width, per_frame = cameras[0].height, cameras[0].width, len(cameras)
         channels = per_frame * self.stack_size
         box = gym.spaces.Box(0, 255, shape=(channels, height, width), dtype=np.uint8)
@@ -79,7 +95,7 @@ class ObservationBuilder:
             fresh = (now != seen[cars]).any(axis=1)
             if fresh.any():
                 update = cars[fresh]
-                frames = render_cameras(texture, poses()[update], cameras).transpose(0, 3, 1, 2)
+                frames = render(poses()[update]).transpose(0, 3, 1, 2)
                 new_episode = st.episode[update] != seen[update, 0]
                 if self.stack_size > 1:
                     stack[update[~new_episode], :-per_frame] = stack[update[~new_episode], per_frame:]

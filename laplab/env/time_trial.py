@@ -43,8 +43,9 @@ class TimeTrialEnv(gym.Env):
 
     def __init__(self, track: Track | str = DEFAULT_TRACK, reward_function: RewardSpec = DEFAULT_REWARD,
                  model_metadata: ModelMetadata | dict | str | None = None, vehicle: VehicleParams = DEEPRACER,
-                 episode: EpisodeParams = EpisodeParams(), stack_size: int = 1, seed: int | None = None):
-        _setup_episodes(self, 1, track, reward_function, model_metadata, vehicle, episode, stack_size, seed)
+                 episode: EpisodeParams = EpisodeParams(), stack_size: int = 1, seed: int | None = None,
+                 randomization=None):
+        _setup_episodes(self, 1, track, reward_function, model_metadata, vehicle, episode, stack_size, seed, randomization)
         self.observation_space = self._observations.single_space
         self.action_space = self.action_spec.gym_space()
 

@@ -44,7 +44,8 @@ def resolve_metadata(metadata: ModelMetadata | dict | str | os.PathLike | None) 
     return load_model_metadata(metadata)
 
 
-def _setup_episodes(env, num_cars: int, track, reward_function, model_metadata, vehicle, episode, stack_size, seed) -> None:
+def _setup_episodes(env, num_cars: int, track, reward_function, model_metadata, vehicle, episode, stack_size, seed,
+                    randomization=None) -> None:
     """What both envs hold: metadata, track, simulator, action spec, reward function, params and observations."""
     env.model_metadata = resolve_metadata(model_metadata)
     env.track = track if isinstance(track, Track) else load_track(track)
@@ -52,7 +53,8 @@ def _setup_episodes(env, num_cars: int, track, reward_function, model_metadata, 
     env.action_spec = env.model_metadata.action_space
     env.reward_fn = resolve_reward_function(reward_function, env.action_spec.max_speed)
     env._params = ParamsBuilder(env.sim)
-    env._observations = ObservationBuilder(env.sim, env.model_metadata, seed=seed, stack_size=stack_size)
+    env._observations = ObservationBuilder(env.sim, env.model_metadata, seed=seed, stack_size=stack_size,
+                                           randomization=randomization)
 
 
 def _reset_episodes(sim: Simulator, seed: int | None, options: dict[str, Any] | None) -> None:
@@ -96,8 +98,9 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
     def __init__(self, num_envs: int = 16, track: Track | str = DEFAULT_TRACK, reward_function: RewardSpec = DEFAULT_REWARD,
                  model_metadata: ModelMetadata | dict | str | None = None, vehicle: VehicleParams = DEEPRACER,
                  episode: EpisodeParams = EpisodeParams(), keep_params: bool = True, stack_size: int = 1,
-                 seed: int | None = None):
-        _setup_episodes(self, num_envs, track, reward_function, model_metadata, vehicle, episode, stack_size, seed)
+                 seed: int | None = None, randomization=None):
+        _setup_episodes(self, num_envs, track, reward_function, model_metadata, vehicle, episode, stack_size, seed,
+                        randomization)
         self.num_envs = int(num_envs)
         self.keep_params = keep_params
         self.single_observation_space = self._observations.single_space

@@ -32,6 +32,8 @@ class TrainConfig:
     - ``eval_episodes``: greedy evaluation laps run after each iteration, from starts spread evenly over
       the lap (their mean progress picks the best checkpoint).
     - ``seed``: seeds the network initialisation, sampling and shuffling.
+    - ``domain_randomization``: randomise camera frames in training (lighting, colours, noise, blur,
+      camera jitter; see :mod:`laplab.sensors.randomize`), for models meant for the physical car.
     - ``num_threads``: torch threads (None: laplab's choice for this machine).
     """
 
@@ -46,6 +48,7 @@ class TrainConfig:
     reverse: bool = False
     alternate_direction: bool = False
     vehicle: str = "deepracer"
+    domain_randomization: bool = False
     num_threads: int | None = None
     version: int = CONFIG_VERSION
 

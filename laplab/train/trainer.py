@@ -117,7 +117,12 @@ class Trainer:
         self.eval_sim = Simulator(track, config.eval_episodes, vehicle,
                                   EpisodeParams(round_robin_advance=0.0, reverse=config.reverse))
         stack = self.hp.stack_size
-        self.observations = ObservationBuilder(self.sim, self.metadata, seed=config.seed, stack_size=stack)
+        randomization = None
+        if config.domain_randomization:
+            from laplab.sensors.randomize import RandomizationParams
+            randomization = RandomizationParams(enabled=True)
+        self.observations = ObservationBuilder(self.sim, self.metadata, seed=config.seed, stack_size=stack,
+                                               randomization=randomization)
         self.eval_observations = ObservationBuilder(self.eval_sim, self.metadata, seed=config.seed + 1, stack_size=stack)
         self.params = ParamsBuilder(self.sim)
         self.eval_params = ParamsBuilder(self.eval_sim)
