@@ -112,8 +112,8 @@ class SACLearner:
         self.actor = SquashedGaussianActor(observation_space, dim, network_name).to(self.device)
         self.critic = TwinQ(observation_space, dim, network_name).to(self.device)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=hyperparameters.lr)
-        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=hyperparameters.lr)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=hyperparameters.lr, fused=True)
+        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=hyperparameters.lr, fused=True)
         self.buffer = ReplayBuffer(buffer_capacity, observation_space, dim)
         self.rng = np.random.default_rng(seed)
         self.gradient_steps = 0
