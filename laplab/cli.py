@@ -59,13 +59,9 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     from laplab.store.layout import ModelNameError
     from laplab.track.geometry import TrackError
     from laplab.train.config import ConfigError
-    errors = (UserError, TrackError, MetadataError, ActionSpaceError, RewardFunctionError, FileNotFoundError,
-              HyperparameterError, ModelNameError, ConfigError)
-    try:
-        from laplab.train.jobs import JobError
-    except ImportError:  # training extras (torch) not installed
-        return errors
-    return errors + (JobError,)
+    from laplab.train.errors import JobError
+    return (UserError, TrackError, MetadataError, ActionSpaceError, RewardFunctionError, FileNotFoundError,
+            HyperparameterError, ModelNameError, ConfigError, JobError)
 
 
 def main(argv: list[str] | None = None) -> int:

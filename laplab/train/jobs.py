@@ -12,12 +12,9 @@ from laplab.reward.validate import validate_reward_function
 from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import model_folder, validate_model_name
 from laplab.train.config import TrainConfig
+from laplab.train.errors import JobError
 from laplab.train.trainer import Trainer, load_checkpoint, load_weights_only
 from laplab.track.registry import load_track
-
-
-class JobError(ValueError):
-    """A job that cannot start: a name clash, a missing model, a clone that does not match."""
 
 
 def reward_file(config: TrainConfig) -> Path:
