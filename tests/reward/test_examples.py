@@ -174,3 +174,14 @@ def test_every_example_passes_validation_on_a_track(name, stadium_track):
     report = validate_reward_function(load(name), stadium_track)
     assert report.passed, report.error
     assert report.calls > 100 and 0.0 < report.minimum <= report.mean < report.maximum
+
+
+def test_lap_pace_rewards_a_faster_lap_and_nothing_off_track():
+    reward_fn = load_reward_function(example_path("lap_pace"))
+    base = {"is_offtrack": False, "all_wheels_on_track": True, "progress": 50.0, "track_width": 0.76,
+            "distance_from_center": 0.1}
+    fast = reward_fn({**base, "steps": 40.0})
+    slow = reward_fn({**base, "steps": 160.0})
+    assert fast > 4 * slow > 0  # pace squared: 4x the pace earns 16x the pace term
+    assert reward_fn({**base, "steps": 40.0, "all_wheels_on_track": False}) == 1e-3
+    assert reward_fn({**base, "steps": 40.0, "is_offtrack": True}) == 1e-3
