@@ -82,15 +82,32 @@ class Simulator:
         for d in (0, 1):
             sel = cars[direction == d]
             if sel.size:
-                self._place(sel, self.tracks[d], self.arrays[d], ndist[direction == d])
+                self._place(sel, d, ndist[direction == d])
         self._episodes_done[cars] += 1
         st.episode[cars] += 1
-        full = np.zeros(self.num_cars, dtype=np.bool_)
-        full[cars] = True
-        observe_kernel(st, self.arrays[0], self.arrays[1], self._vc, self.obs, *self._look, full)
+        self._observe(cars)
 
-    def _place(self, cars: np.ndarray, track: Track, arrays: TrackArrays, ndist: np.ndarray) -> None:
-        st = self.state
+    def _observe(self, cars: np.ndarray) -> None:
+        """Recompute the STATE observation rows of ``cars`` from their current state."""
+        mask = np.zeros(self.num_cars, dtype=np.bool_)
+        mask[cars] = True
+        observe_kernel(self.state, self.arrays[0], self.arrays[1], self._vc, self.obs, *self._look, mask)
+
+    def _project_reference(self, cars: np.ndarray, direction: int, poses: np.ndarray):
+        """Set the reference point of ``cars`` (all driving ``direction``) at ``poses`` (K, 3) and its
+        projection (arc, segment, position in the segment, lateral offset); returns the projection."""
+        from laplab.vehicle.dynamics import reference_point
+        st, track = self.state, self.tracks[direction]
+        ref = reference_point(poses, self.vehicle)
+        proj = project_points(self.arrays[direction], ref)
+        seg_len = np.maximum(np.diff(track.arc_length)[proj.segment], 1e-12)
+        st.ref_x[cars], st.ref_y[cars] = ref[:, 0], ref[:, 1]
+        st.arc[cars], st.segment[cars], st.lateral[cars] = proj.arc_length, proj.segment, proj.lateral
+        st.seg_t[cars] = np.clip((proj.arc_length - track.arc_length[proj.segment]) / seg_len, 0.0, 1.0)
+        return proj
+
+    def _place(self, cars: np.ndarray, direction: int, ndist: np.ndarray) -> None:
+        st, track = self.state, self.tracks[direction]
         s0 = np.mod(ndist, 1.0) * track.length
         origin = track.point_at(s0)
         yaw = track.heading_at(s0)
@@ -99,14 +116,8 @@ class Simulator:
             field[cars] = 0.0
         for field in (st.steps, st.reverse_count, st.immobile_count):
             field[cars] = 0
-        ref = origin + self.vehicle.reference_offset * np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
-        proj = project_points(arrays, ref)
-        seg_len = np.diff(track.arc_length)[proj.segment]
-        st.ref_x[cars], st.ref_y[cars] = ref[:, 0], ref[:, 1]
-        st.arc[cars], st.start_arc[cars] = proj.arc_length, proj.arc_length
-        st.segment[cars], st.lateral[cars] = proj.segment, proj.lateral
-        seg_start = track.arc_length[proj.segment]
-        st.seg_t[cars] = np.clip(np.where(seg_len > 0, (proj.arc_length - seg_start) / np.maximum(seg_len, 1e-12), 0.0), 0, 1)
+        proj = self._project_reference(cars, direction, np.column_stack([origin, yaw]))
+        st.start_arc[cars] = proj.arc_length
         st.wheels_on[cars] = 4
         st.status[cars] = IN_PROGRESS
 
@@ -120,7 +131,7 @@ class Simulator:
         """
         from laplab.sim.state import OFF_TRACK
         from laplab.track.projection import points_on_track
-        from laplab.vehicle.dynamics import reference_point, wheel_centers
+        from laplab.vehicle.dynamics import wheel_centers
 
         cars = np.asarray(cars, dtype=np.int64).reshape(-1)
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
@@ -131,27 +142,20 @@ class Simulator:
         st.cmd_steer[cars] = steer if cmd_steer is None else cmd_steer
         if steps is not None:
             st.steps[cars] = steps
-        ref = reference_point(poses, self.vehicle)
         wheels = wheel_centers(poses, self.vehicle)
         for d in (0, 1):
             sel = st.direction[cars] == d
             if not sel.any():
                 continue
             sub, track, arrays = cars[sel], self.tracks[d], self.arrays[d]
-            proj = project_points(arrays, ref[sel])
-            seg_len = np.maximum(np.diff(track.arc_length)[proj.segment], 1e-12)
-            st.ref_x[sub], st.ref_y[sub] = ref[sel, 0], ref[sel, 1]
-            st.arc[sub], st.segment[sub], st.lateral[sub] = proj.arc_length, proj.segment, proj.lateral
-            st.seg_t[sub] = np.clip((proj.arc_length - track.arc_length[proj.segment]) / seg_len, 0.0, 1.0)
+            proj = self._project_reference(sub, d, poses[sel])
             st.travel[sub] = np.mod(proj.arc_length - st.start_arc[sub], track.length)
             st.progress[sub] = 100.0 * st.travel[sub] / track.length
             hints = np.repeat(proj.segment, 4)
             on = points_on_track(arrays, wheels[sel].reshape(-1, 2), hints).reshape(-1, 4)
             st.wheels_on[sub] = on.sum(axis=1)
         st.status[cars] = np.where(st.wheels_on[cars] == 0, OFF_TRACK, IN_PROGRESS)
-        full = np.zeros(self.num_cars, dtype=np.bool_)
-        full[cars] = True
-        observe_kernel(st, self.arrays[0], self.arrays[1], self._vc, self.obs, *self._look, full)
+        self._observe(cars)
 
     def step(self, cmd_steer: np.ndarray, cmd_speed: np.ndarray) -> np.ndarray:
         """Advance every in-progress car by one decision (1/15 s).
