@@ -105,7 +105,7 @@ def load_checkpoint(path) -> dict:
 
 
 class Trainer:
-    """A training job over one model folder (created by :func:`laplab.train.jobs.create_model`)."""
+    """A training job over one model folder (made by :func:`laplab.train.jobs.create_training`)."""
 
     def __init__(self, folder: ModelFolder, config: TrainConfig, reward_fn, resume_from: dict | None = None):
         self.folder, self.config, self.reward_fn = folder, config, reward_fn
@@ -137,6 +137,7 @@ class Trainer:
             self.best_lap = resume_from.get("best_lap_time")
             self._drop_records_after_checkpoint()
         self.metrics = TrainingMetricsWriter(folder.training_metrics)
+        self._iteration_rows = self._read_iteration_log()
         # Continue the round-robin schedule where the job stopped.
         self.sim._episodes_done[:] = self.episodes
 
@@ -208,8 +209,7 @@ class Trainer:
         # deepracer-for-cloud numbers simtrace files from 0: iteration k (1-based) -> (k-1)-iteration.csv
         with SimtraceWriter(self.folder.training_simtrace(self.iteration - 1), fsync=False) as writer:
             writer.write_rows(trace)
-        for phase, b in (("training", batch), ("evaluation", evaluation)):
-            append = self.metrics.append_training if phase == "training" else self.metrics.append_evaluation
+        for append, b in ((self.metrics.append_training, batch), (self.metrics.append_evaluation, evaluation)):
             append(reward_score=b.total_reward, start_time=np.zeros(len(b.status)), metric_time=b.duration,
                    completion_percentage=b.progress, episode_status=b.status_names())
 
@@ -218,14 +218,19 @@ class Trainer:
         """laplab's per-iteration log (losses, entropy, rates), beside DeepRacer's metrics."""
         return self.folder.metrics_dir / "laplab-iterations.json"
 
+    def _read_iteration_log(self) -> list[dict]:
+        """The log's rows up to the checkpoint this job starts from (read once, kept in memory)."""
+        from laplab.store.atomic import read_json
+        path = self.iterations_log
+        rows = read_json(path)["iterations"] if path.exists() else []
+        return [r for r in rows if r["iteration"] <= self.iteration]
+
     def _log_iteration(self, report: IterationReport) -> None:
         from dataclasses import asdict
 
-        from laplab.store.atomic import atomic_write_json, read_json
-        path = self.iterations_log
-        rows = [r for r in (read_json(path)["iterations"] if path.exists() else []) if r["iteration"] < report.iteration]
-        rows.append(asdict(report))
-        atomic_write_json(path, {"iterations": rows}, indent=None)
+        from laplab.store.atomic import atomic_write_json
+        self._iteration_rows.append(asdict(report))
+        atomic_write_json(self.iterations_log, {"iterations": self._iteration_rows}, indent=None)
 
     def _save_checkpoint(self, eval_progress: float) -> None:
         payload = checkpoint_bytes(self.learner, self.iteration, self.env_steps, self.episodes, self.best_lap)
@@ -257,22 +262,17 @@ class Trainer:
             deadline = started + cfg.max_time_s
             try:
                 batch = self._collect(lambda: should_stop() or time.perf_counter() >= deadline)
+                if should_stop():  # a signal during collection: keep the last complete model
+                    reason = "stopped"
+                    break
+                losses = self._learn(batch)
+                self.iteration += 1
+                self.env_steps += batch.env_steps
+                evaluation = self._evaluate()
             except CollectionAborted:  # the partial iteration is dropped; the last checkpoint stands
                 reason = "stopped" if should_stop() else "max_time"
                 break
-            except RewardFunctionError as exc:
-                error, reason = str(exc), "reward_error"
-                self.folder.write_error(error)
-                break
-            if should_stop():  # a signal during collection: keep the last complete model
-                reason = "stopped"
-                break
-            losses = self._learn(batch)
-            self.iteration += 1
-            self.env_steps += batch.env_steps
-            try:
-                evaluation = self._evaluate()
-            except RewardFunctionError as exc:
+            except RewardFunctionError as exc:  # in training or evaluation episodes alike
                 error, reason = str(exc), "reward_error"
                 self.folder.write_error(error)
                 break
