@@ -106,7 +106,9 @@ class ObservationBuilder:
         return box, read
 
     def observe(self, cars: np.ndarray | slice = slice(None)):
-        """Observations of the selected cars: an array (or a dict of arrays) with a leading car axis."""
+        """Observations of the selected cars: an array (or a dict of arrays) with a leading car axis.
+
+        Always new arrays (every reader indexes with an integer array), which the caller may keep."""
         if isinstance(cars, slice):
             cars = np.arange(self.sim.num_cars)[cars]
         if len(self._parts) == 1:

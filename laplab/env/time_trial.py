@@ -72,7 +72,7 @@ class TimeTrialEnv(gym.Env):
 
     def _observe(self):
         obs = self._observations.observe(slice(0, 1))
-        return {k: v[0].copy() for k, v in obs.items()} if isinstance(obs, dict) else obs[0].copy()
+        return {k: v[0] for k, v in obs.items()} if isinstance(obs, dict) else obs[0]  # observe() gives new arrays
 
     def _info(self) -> dict:
         st = self.sim.state

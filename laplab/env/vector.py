@@ -107,21 +107,19 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
         self.single_action_space = self.action_spec.gym_space()
         self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, self.num_envs)
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, self.num_envs)
-        self._rewards = np.zeros(self.num_envs, dtype=np.float64)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Reset every car. ``options``: ``start_ndist`` (float or (N,)), ``direction`` (0/1 or (N,))."""
         super().reset(seed=seed)
         _reset_episodes(self.sim, seed, options)
-        return self._observe_copy(), self._base_info()
+        return self._observations.observe(), self._base_info()
 
     def step(self, actions):
         steer, speed = self.action_spec.to_commands(actions)
         sim = self.sim
         stepped = sim.step(steer, speed)
         cars = np.flatnonzero(stepped)
-        rewards = self._rewards
-        rewards[:] = 0.0
+        rewards = np.zeros(self.num_envs)
         params_list = None
         if self.reward_fn is not None and cars.size:
             rewards[cars], params = rewards_for(self._params, self.reward_fn, cars, keep=self.keep_params)
@@ -136,20 +134,15 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
         info = self._base_info(lap_mask=done & (status == LAP_COMPLETE))
         if params_list is not None:
             info["params"] = params_list
-        obs = self._observe_copy()
+        obs = self._observations.observe()
         if done.any():
             info["final_obs"] = obs
             info["_final_obs"] = done.copy()
-            info["final_info"] = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in info.items()
-                                  if k not in ("final_obs", "_final_obs")}
+            info["final_info"] = {k: v for k, v in info.items() if k not in ("final_obs", "_final_obs")}
             info["_final_info"] = done.copy()
             sim.reset(done)
-            obs = self._observe_copy()
-        return obs, rewards.copy(), terminated, truncated, info
-
-    def _observe_copy(self):
-        obs = self._observations.observe()
-        return {k: v.copy() for k, v in obs.items()} if isinstance(obs, dict) else obs.copy()
+            obs = self._observations.observe()
+        return obs, rewards, terminated, truncated, info
 
     def _base_info(self, lap_mask: np.ndarray | None = None) -> dict:
         st = self.sim.state

@@ -100,8 +100,7 @@ def collect_episodes(sim: Simulator, observations: ObservationBuilder, params: P
     while (st.status == IN_PROGRESS).any():
         if should_abort is not None and should_abort():
             raise CollectionAborted
-        obs = observations.observe()
-        obs = {k: v.copy() for k, v in obs.items()} if isinstance(obs, dict) else obs.copy()
+        obs = observations.observe()  # new arrays each step: safe to keep in the rollout
         action, env_action, log_prob, value = policy(obs)
         steer, speed = action_space.to_commands(env_action)
         stepped = sim.step(steer, speed)
@@ -152,11 +151,11 @@ def _trace_rows(sim: Simulator, cars: np.ndarray, reward: np.ndarray, action_spa
         action_col = np.stack([steer_deg, speed], axis=1)
     status = st.status[cars]
     return {
-        "episode": cars.astype(np.int64), "steps": st.steps[cars].copy(), "X": st.ref_x[cars].copy(),
-        "Y": st.ref_y[cars].copy(), "yaw": np.degrees(st.yaw[cars]), "steer": np.degrees(st.cmd_steer[cars]),
-        "throttle": st.cmd_speed[cars].copy(), "action": action_col, "reward": reward[cars].copy(),
+        "episode": cars.astype(np.int64), "steps": st.steps[cars], "X": st.ref_x[cars],
+        "Y": st.ref_y[cars], "yaw": np.degrees(st.yaw[cars]), "steer": np.degrees(st.cmd_steer[cars]),
+        "throttle": st.cmd_speed[cars], "action": action_col, "reward": reward[cars],
         "done": status != IN_PROGRESS, "all_wheels_on_track": st.wheels_on[cars] == 4,
-        "progress": st.progress[cars].copy(), "closest_waypoint": closest.astype(np.int64),
+        "progress": st.progress[cars], "closest_waypoint": closest.astype(np.int64),
         "track_len": np.full(cars.size, track_len), "tstamp": st.steps[cars] * sim.dt,
         "episode_status": np.array(STATUS_NAMES, dtype=object)[status].astype(str),
     }
