@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import threading
 from pathlib import Path
@@ -37,19 +36,6 @@ def register(subparsers) -> None:
     _add_job_options(clone, defaults=False)
     clone.add_argument("--quiet", action="store_true")
     clone.set_defaults(func=run_clone)
-
-
-def _read_json(path: str | None, what: str) -> dict | None:
-    from laplab.cli import UserError
-    if path is None:
-        return None
-    file = Path(path)
-    if not file.is_file():
-        raise UserError(f"{path}: no such {what} file.")
-    try:
-        return json.loads(file.read_text())
-    except json.JSONDecodeError as exc:
-        raise UserError(f"{path}: not valid JSON: {exc.msg} at line {exc.lineno}, column {exc.colno}.") from None
 
 
 def _overrides(args: argparse.Namespace) -> dict:
