@@ -24,7 +24,6 @@ class TrackArrays(NamedTuple):
     arc_length: np.ndarray  # (N,)
     left_width: np.ndarray  # (N,)
     right_width: np.ndarray  # (N,)
-    road_width: np.ndarray  # (N,)
     length: float
     segments: np.ndarray  # (N-1, 5) per segment: start x, start y, dx, dy, 1 / length^2
     far_gap: np.ndarray  # (N-1,) distance from each segment to the nearest segment >= FAR_ARC away along the loop, m
@@ -46,16 +45,12 @@ class Projection(NamedTuple):
 def track_arrays(track: Track) -> TrackArrays:
     """Pack a track for the kernels (computes the far-segment gap once)."""
     c = track.centerline
-    d = np.diff(c, axis=0)
-    len_sq = (d * d).sum(axis=1)
-    inv = np.where(len_sq > 1e-18, 1.0 / np.maximum(len_sq, 1e-18), 0.0)
-    segments = np.ascontiguousarray(np.column_stack([c[:-1], d, inv]))
     left, right = (track.inner, track.outer) if track.is_ccw else (track.outer, track.inner)
     mid = 0.5 * (c[:-1] + c[1:])
     anchor = np.stack([_nearest_segment(mid, left), _nearest_segment(mid, right)], axis=1)
-    return TrackArrays(track.centerline, track.arc_length, track.left_width, track.right_width,
-                       track.road_width, track.length, segments, *_far_segment_gap(c, track.arc_length),
-                       _segment_table(left), _segment_table(right), anchor.astype(np.int64))
+    return TrackArrays(c, track.arc_length, track.left_width, track.right_width, track.length, _segment_table(c),
+                       *_far_segment_gap(c, track.arc_length), _segment_table(left), _segment_table(right),
+                       anchor.astype(np.int64))
 
 
 def _segment_table(polyline: np.ndarray) -> np.ndarray:
