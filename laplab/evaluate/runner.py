@@ -27,6 +27,7 @@ import numpy as np
 from laplab.env.action_space import ActionSpace
 from laplab.evaluate.summary import INCIDENTS, TrialResult
 from laplab.sim.simulator import Simulator
+from laplab.vehicle.dynamics import pose_for_reference
 from laplab.sim.state import (CRASHED, IMMOBILIZED, IN_PROGRESS, LAP_COMPLETE, OFF_TRACK, REVERSED,
                               STATUS_NAMES, TIME_UP)
 from laplab.track.geometry import Track
@@ -64,9 +65,7 @@ def reset_poses(track: Track, reference_offset: float, arc: np.ndarray, near: np
     left = centre + 0.5 * np.interp(wrapped, track.arc_length, track.left_width)[:, None] * left_normal
     right = centre - 0.5 * np.interp(wrapped, track.arc_length, track.right_width)[:, None] * left_normal
     use_left = np.hypot(*(near - left).T) <= np.hypot(*(near - right).T)
-    reference = np.where(use_left[:, None], left, right)
-    origin = reference - reference_offset * np.stack([np.cos(heading), np.sin(heading)], axis=1)
-    return np.column_stack([origin, heading])
+    return pose_for_reference(np.where(use_left[:, None], left, right), heading, reference_offset)
 
 
 def put_back(sim: Simulator, cars: np.ndarray, travel: np.ndarray) -> None:
@@ -81,9 +80,8 @@ def put_back(sim: Simulator, cars: np.ndarray, travel: np.ndarray) -> None:
     stranded = cars[st.status[cars] != IN_PROGRESS]
     if stranded.size:  # a lane off the road (a freak border): use the centre line
         arc_c = st.start_arc[stranded] + travel[np.isin(cars, stranded)]
-        poses = np.column_stack([track.point_at(arc_c), track.heading_at(arc_c)])
-        poses[:, :2] -= sim.vehicle.reference_offset * np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])])
-        sim.place(stranded, poses)
+        sim.place(stranded, pose_for_reference(track.point_at(arc_c), track.heading_at(arc_c),
+                                                 sim.vehicle.reference_offset))
         if (st.status[stranded] != IN_PROGRESS).any():
             raise RuntimeError(f"cannot put cars {stranded.tolist()} back on track {track.name!r}")
     st.travel[cars] = travel

@@ -10,6 +10,8 @@ from typing import Callable
 
 import numpy as np
 
+from laplab.vehicle.dynamics import pose_for_reference
+
 MAX_VIDEO_FRAMES = 2700  # 3 minutes at 15 fps; longer trials are cut
 
 
@@ -35,8 +37,7 @@ def trial_poses(result, trial: int = 0) -> tuple[np.ndarray, dict[str, np.ndarra
         raise ValueError(f"the evaluation has no rows for trial {trial} (trials 0..{len(result.trials) - 1})")
     columns = {name: values[rows] for name, values in result.trace.items()}
     yaw = np.radians(columns["yaw"])
-    offset = result.vehicle.reference_offset
-    poses = np.column_stack([columns["X"] - offset * np.cos(yaw), columns["Y"] - offset * np.sin(yaw), yaw])
+    poses = pose_for_reference(np.column_stack([columns["X"], columns["Y"]]), yaw, result.vehicle.reference_offset)
     return poses, columns
 
 

@@ -20,6 +20,7 @@ from laplab.reward.params import ParamsBuilder
 from laplab.sim.simulator import Simulator
 from laplab.sim.state import EpisodeParams
 from laplab.track.geometry import Track
+from laplab.vehicle.dynamics import pose_for_reference
 
 LAP_FRACTIONS = (0.005, 0.1, 0.5, 0.75, 0.995)
 LATERAL_FRACTIONS = (-1.4, -0.9, -0.5, -0.15, 0.0, 0.15, 0.5, 0.9, 1.4)  # of the half width; |x| > 1: off track
@@ -65,10 +66,10 @@ def sweep_params(track: Track, action_space: ActionSpace | None = None) -> list[
         seg = min(int(np.searchsorted(t.arc_length, s, side="right")) - 1, t.num_waypoints - 2)
         half = 0.5 * float(t.width[seg])
         normal = np.array([-math.sin(yaw), math.cos(yaw)])
-        origin = centre + lat * half * normal - sim.vehicle.reference_offset * np.array([math.cos(yaw), math.sin(yaw)])
-        for _ in range(len(steer_deg)):
-            poses[row] = (origin[0], origin[1], yaw + math.radians(heading_deg))
-            row += 1
+        pose = pose_for_reference(centre + lat * half * normal, yaw, sim.vehicle.reference_offset)[0]
+        pose[2] += math.radians(heading_deg)  # turned about the origin placed for the track's heading
+        poses[row:row + len(steer_deg)] = pose
+        row += len(steer_deg)
     cars = np.arange(sim.num_cars)
     sim.state.start_arc[:] = 0.0  # progress counts from waypoint 0 of each direction
     cmd_speed = np.tile(speed, n_states)

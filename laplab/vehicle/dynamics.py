@@ -142,6 +142,15 @@ def reference_point(poses: np.ndarray, params: VehicleParams) -> np.ndarray:
     return _body_points(poses, np.array([[params.reference_offset, 0.0]]))[:, 0]
 
 
+def pose_for_reference(points: np.ndarray, yaw: np.ndarray, reference_offset: float) -> np.ndarray:
+    """(K, 3) model-origin poses whose reference point (:func:`reference_point`, ``reference_offset`` m
+    ahead of the origin) lies at ``points`` (K, 2) with headings ``yaw`` (K,) rad."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    yaw = np.asarray(yaw, dtype=np.float64).reshape(-1)
+    origin = points - reference_offset * np.column_stack([np.cos(yaw), np.sin(yaw)])
+    return np.column_stack([origin, yaw])
+
+
 def _body_points(poses: np.ndarray, local: np.ndarray) -> np.ndarray:
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
