@@ -75,11 +75,11 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"stamp": stamp, **result.to_dict()}, indent=2))
         return 0
-    _print_result(console, result, stamp, folder)
+    print_evaluation(console, result, stamp, folder)
     return 0
 
 
-def _print_result(console: Console, result, stamp: str, folder) -> None:
+def print_evaluation(console: Console, result, stamp: str, folder) -> None:
     from laplab.evaluate.summary import summary_lines, trials_table
     s = result.settings
     resets = "unlimited" if s.resets is None else str(s.resets)

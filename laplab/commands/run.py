@@ -26,8 +26,8 @@ def run(args: argparse.Namespace) -> int:
 
     from rich.console import Console
 
-    from laplab.commands.evaluate import _print_result
-    from laplab.commands.train import _run_trainer
+    from laplab.commands.evaluate import print_evaluation
+    from laplab.commands.train import run_trainer
     from laplab.evaluate.trials import EvaluationSettings, evaluate_model
     from laplab.train.config import TrainConfig, parse_duration
     from laplab.train.jobs import create_training
@@ -39,12 +39,12 @@ def run(args: argparse.Namespace) -> int:
                      seed=args.seed, reward_path=str(Path(args.reward).resolve()) if args.reward else None)
     console.rule(f"1/3 train {name}")
     trainer = create_training(name, config)
-    code = _run_trainer(trainer, console, quiet=False)
+    code = run_trainer(trainer, console, quiet=False)
     if code != 0:
         return code
     console.rule(f"2/3 evaluate {name}")
     result, stamp = evaluate_model(name, EvaluationSettings(trials=args.trials, seed=args.seed))
-    _print_result(console, result, stamp, trainer.folder)
+    print_evaluation(console, result, stamp, trainer.folder)
     if not args.no_report:
         console.rule(f"3/3 report {name}")
         from laplab.analysis.report import build_report

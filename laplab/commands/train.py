@@ -74,7 +74,7 @@ class _StopFlag:
             signal.signal(sig, handler)
 
 
-def _run_trainer(trainer, console: Console, quiet: bool) -> int:
+def run_trainer(trainer, console: Console, quiet: bool) -> int:
     from laplab.train.progress import ProgressPrinter
     printer = ProgressPrinter(console, trainer, quiet)
     with _StopFlag() as stop:
@@ -103,7 +103,7 @@ def run_train(args: argparse.Namespace) -> int:
         values = {k: v for k, v in _overrides(args).items() if v is not None}
         values["domain_randomization"] = bool(args.domain_randomization)
         trainer = create_training(args.name, replace(TrainConfig(), **values))
-    return _run_trainer(trainer, console, args.quiet)
+    return run_trainer(trainer, console, args.quiet)
 
 
 def run_clone(args: argparse.Namespace) -> int:
@@ -113,4 +113,4 @@ def run_clone(args: argparse.Namespace) -> int:
     config, weights = clone_config(args.source, _overrides(args))
     trainer = create_training(args.name, config, init_weights=weights)
     console.print(f"cloned {args.source} -> {args.name}")
-    return _run_trainer(trainer, console, args.quiet)
+    return run_trainer(trainer, console, args.quiet)
