@@ -13,6 +13,10 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, Mapping
 
+# The networks' arithmetic in training (laplab's option, not a DeepRacer hyperparameter): see
+# ``laplab.agents.networks.set_compute_precision``.
+PRECISIONS = ("auto", "float32", "bfloat16")
+
 BATCH_SIZES = (32, 64, 128, 256, 512)
 EXPLORATION_TYPES = ("categorical", "e-greedy")
 LOSS_TYPES = ("huber", "mean squared error")

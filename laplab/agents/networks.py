@@ -21,6 +21,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from laplab.agents.hyperparameters import PRECISIONS
+
 CAMERA_SENSORS = ("FRONT_FACING_CAMERA", "STEREO_CAMERAS", "LEFT_CAMERA")
 LIDAR_SENSORS = ("LIDAR", "SECTOR_LIDAR", "DISCRETIZED_SECTOR_LIDAR")
 STATE_SENSOR = "STATE"
@@ -150,12 +152,54 @@ class Embedder(nn.Module):
         self.middleware = _dense_stack(concatenated, middleware, nn.ReLU)
         self.output_dim = middleware[-1] if middleware else concatenated
         self.single_box = single_box
+        self.compute_dtype: torch.dtype | None = None  # see set_compute_precision
 
     def forward(self, observations: torch.Tensor | Mapping[str, torch.Tensor]) -> torch.Tensor:
+        if self.compute_dtype is None:
+            return self._features(observations)
+        device_type = next(self.parameters()).device.type
+        with torch.autocast(device_type, dtype=self.compute_dtype):
+            return self._features(observations).float()
+
+    def _features(self, observations: torch.Tensor | Mapping[str, torch.Tensor]) -> torch.Tensor:
         if self.single_box:
             observations = {_SINGLE: observations}
         parts = [self.sensors[name](observations[name]) for name in self.sensor_names]
         return self.middleware(parts[0] if len(parts) == 1 else torch.cat(parts, dim=-1))
+
+
+def has_convolutions(module: nn.Module) -> bool:
+    return any(isinstance(m, CameraEmbedder) for m in module.modules())
+
+
+def native_bfloat16() -> bool:
+    """Whether this CPU multiplies bfloat16 in hardware (AVX512-BF16 or AMX), where oneDNN runs
+    bfloat16 convolutions about twice as fast as float32."""
+    cpu = getattr(torch, "cpu", None)
+    checks = ("_is_avx512_bf16_supported", "_is_amx_tile_supported")
+    return any(bool(getattr(cpu, name, lambda: False)()) for name in checks)
+
+
+def resolve_precision(precision: str, module: nn.Module) -> str:
+    """``"auto"`` -> ``"bfloat16"`` for camera networks on a CPU with native bfloat16, else
+    ``"float32"``; the others pass through."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if precision == "auto":
+        return "bfloat16" if has_convolutions(module) and native_bfloat16() else "float32"
+    return precision
+
+
+def set_compute_precision(module: nn.Module, precision: str) -> str:
+    """Run every observation trunk inside ``module`` in ``precision`` (mixed precision: the weights,
+    gradients, optimizer and heads stay float32; trunk features come back as float32). Returns
+    the resolved precision."""
+    resolved = resolve_precision(precision, module)
+    dtype = torch.bfloat16 if resolved == "bfloat16" else None
+    for child in module.modules():
+        if isinstance(child, Embedder):
+            child.compute_dtype = dtype
+    return resolved
 
 
 def _sensor_embedder(name: str, space: gym.spaces.Space, scheme: NetworkScheme, network_name: str) -> nn.Module:
@@ -260,13 +304,18 @@ class ActorCritic(nn.Module):
         """-> (action distribution over B rows, values (B,))."""
         policy_features = self.policy_trunk(observations)
         value_features = policy_features if self.value_trunk is None else self.value_trunk(observations)
+        return self._distribution(policy_features), self.value_head(value_features).squeeze(-1)
+
+    def distribution(self, observations: Any) -> torch.distributions.Distribution:
+        """The action distribution alone (the value trunk does not run)."""
+        return self._distribution(self.policy_trunk(observations))
+
+    def _distribution(self, policy_features: torch.Tensor) -> torch.distributions.Distribution:
         out = self.policy_head(policy_features)
         if self.action_spec.discrete:
-            distribution = torch.distributions.Categorical(logits=out)
-        else:
-            std = self.log_std.clamp(-20.0, 2.0).exp().expand_as(out)
-            distribution = torch.distributions.Independent(torch.distributions.Normal(out, std), 1)
-        return distribution, self.value_head(value_features).squeeze(-1)
+            return torch.distributions.Categorical(logits=out)
+        std = self.log_std.clamp(-20.0, 2.0).exp().expand_as(out)
+        return torch.distributions.Independent(torch.distributions.Normal(out, std), 1)
 
     def value(self, observations: Any) -> torch.Tensor:
         """State values (B,)."""

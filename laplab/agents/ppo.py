@@ -27,7 +27,7 @@ from laplab.agents.hyperparameters import Hyperparameters
 from laplab.agents.losses import (clipped_surrogate_loss, compute_gae, entropy_bonus,
                                   policy_change_stats, value_loss)
 from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, ActorCritic, PolicyStep,
-                                    action_spec_from, observation_to_tensor)
+                                    action_spec_from, observation_to_tensor, set_compute_precision)
 
 CLIP_EPSILON = 0.2
 GAE_LAMBDA = 0.95
@@ -117,7 +117,7 @@ class PPOLearner:
     def __init__(self, observation_space: gym.spaces.Space, action_space_spec: Any,
                  hyperparameters: Hyperparameters = Hyperparameters(),
                  network_name: str = DEFAULT_NETWORK, device: str = "cpu",
-                 seed: int | None = None, num_threads: int | None = None):
+                 seed: int | None = None, num_threads: int | None = None, precision: str = "float32"):
         limit_torch_threads(num_threads)
         if seed is not None:
             torch.manual_seed(seed)
@@ -126,6 +126,7 @@ class PPOLearner:
         self.action_spec: ActionSpec = action_spec_from(action_space_spec)
         self.device = torch.device(device)
         self.model = ActorCritic(observation_space, self.action_spec, network_name).to(self.device)
+        self.precision = set_compute_precision(self.model, precision)  # "auto": bfloat16 trunks for cameras where native
         # fused: one kernel for all parameters, 1.6x faster camera-network steps on CPU than the per-tensor loop
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=hyperparameters.lr, eps=ADAM_EPSILON, fused=True)
         self.rng = np.random.default_rng(seed)
@@ -138,10 +139,16 @@ class PPOLearner:
         return self.hyperparameters.epsilon_at(self.env_steps)
 
     @torch.no_grad()
-    def act(self, observations: Any, deterministic: bool = False) -> PolicyStep:
+    def act(self, observations: Any, deterministic: bool = False, with_value: bool = True) -> PolicyStep:
         """Actions for a batch of B observations (numpy, leading axis B) -> ``PolicyStep`` of
-        numpy arrays. Exploring calls advance the epsilon schedule by B steps."""
-        distribution, value = self.model(observation_to_tensor(observations, self.device))
+        numpy arrays. Exploring calls advance the epsilon schedule by B steps. ``with_value=False``
+        skips the value network (the step's values are then NaN)."""
+        obs = observation_to_tensor(observations, self.device)
+        if with_value:
+            distribution, value = self.model(obs)
+        else:
+            distribution = self.model.distribution(obs)
+            value = torch.full(distribution.batch_shape, float("nan"), device=self.device)
         greedy = distribution.probs.argmax(-1) if self.action_spec.discrete else distribution.mean
         if deterministic:
             action = greedy

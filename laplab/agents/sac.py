@@ -22,7 +22,7 @@ import torch.nn.functional as F
 from laplab.agents.hyperparameters import Hyperparameters
 from laplab.agents.losses import sac_actor_loss, sac_critic_target
 from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, SquashedGaussianActor, TwinQ,
-                                    action_spec_from, observation_to_tensor)
+                                    action_spec_from, observation_to_tensor, set_compute_precision)
 from laplab.agents.ppo import limit_torch_threads
 
 TARGET_SMOOTHING = 0.005  # tau of the Polyak target update
@@ -98,7 +98,7 @@ class SACLearner:
                  hyperparameters: Hyperparameters = Hyperparameters(),
                  network_name: str = DEFAULT_NETWORK, device: str = "cpu",
                  buffer_capacity: int = 100_000, seed: int | None = None,
-                 num_threads: int | None = None):
+                 num_threads: int | None = None, precision: str = "float32"):
         limit_torch_threads(num_threads)
         if seed is not None:
             torch.manual_seed(seed)
@@ -111,6 +111,8 @@ class SACLearner:
         dim = self.action_spec.size
         self.actor = SquashedGaussianActor(observation_space, dim, network_name).to(self.device)
         self.critic = TwinQ(observation_space, dim, network_name).to(self.device)
+        self.precision = set_compute_precision(self.actor, precision)
+        set_compute_precision(self.critic, self.precision)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=hyperparameters.lr, fused=True)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=hyperparameters.lr, fused=True)

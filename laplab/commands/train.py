@@ -28,6 +28,9 @@ def register(subparsers) -> None:
     _add_job_options(train, defaults=True)
     train.add_argument("--domain-randomization", action="store_true",
                        help="randomise camera frames in training (lighting, colours, noise, jitter) for the car")
+    train.add_argument("--precision", choices=("auto", "float32", "bfloat16"), default="auto",
+                       help="network arithmetic in training (auto: bfloat16 for camera networks on CPUs "
+                            "with native bfloat16, else float32)")
     train.add_argument("--quiet", action="store_true", help="print only the summary")
     train.set_defaults(func=run_train)
     clone = subparsers.add_parser("clone", help="start a new model from another model's weights")
@@ -102,6 +105,7 @@ def run_train(args: argparse.Namespace) -> int:
             raise UserError("name the new model with --name NAME (or continue one with --resume NAME)")
         values = {k: v for k, v in _overrides(args).items() if v is not None}
         values["domain_randomization"] = bool(args.domain_randomization)
+        values["precision"] = args.precision
         trainer = create_training(args.name, replace(TrainConfig(), **values))
     return run_trainer(trainer, console, args.quiet)
 

@@ -10,7 +10,9 @@ the best one are kept; older ones are deleted after each save.
 "time_stamp"}, "last_checkpoint": {...}}`, rewritten atomically. The best is chosen as the
 simapp does: a checkpoint whose metric is at least (for laptime: at most) the best's so far
 takes over, ties going to the newer one; a checkpoint without a metric becomes best only
-when there is none yet.
+when there is none yet. laplab adds one rule: on a tie, when both checkpoints carry the mean
+lap time of their evaluation laps (`avg_eval_lap_time`, an extra key), the faster one wins, so
+among checkpoints that all lap the best is the quickest rather than the newest.
 """
 
 from __future__ import annotations
@@ -53,9 +55,13 @@ class CheckpointRecord:
     name: str
     avg_eval_metric: float | None
     time_stamp: float
+    avg_eval_lap_time: float | None = None  # s; laplab's tie-break (module docstring)
 
     def as_json(self) -> dict:
-        return {"name": self.name, "avg_eval_metric": self.avg_eval_metric, "time_stamp": self.time_stamp}
+        out = {"name": self.name, "avg_eval_metric": self.avg_eval_metric, "time_stamp": self.time_stamp}
+        if self.avg_eval_lap_time is not None:
+            out["avg_eval_lap_time"] = self.avg_eval_lap_time
+        return out
 
 
 def checkpoint_name(iteration: int, steps: int) -> str:
@@ -107,7 +113,7 @@ class CheckpointStore:
                 continue
             try:
                 records.append(CheckpointRecord(str(entry["name"]), entry["avg_eval_metric"],
-                                                float(entry["time_stamp"])))
+                                                float(entry["time_stamp"]), entry.get("avg_eval_lap_time")))
             except (KeyError, TypeError, ValueError) as error:
                 raise ValueError(f"{str(path)!r}: entry {key!r} must have name, avg_eval_metric and "
                                  f"time_stamp, got {entry!r}") from error
@@ -119,13 +125,15 @@ class CheckpointStore:
     def last(self) -> CheckpointRecord | None:
         return self._records()[1]
 
-    def _is_better(self, metric: float | None, best: CheckpointRecord | None) -> bool:
+    def _is_better(self, metric: float | None, best: CheckpointRecord | None, lap_time: float | None = None) -> bool:
         if best is None or not (self.folder.model_dir / best.name).exists():
             return True
         if metric is None:
             return False
         if best.avg_eval_metric is None:
             return True
+        if metric == best.avg_eval_metric and lap_time is not None and best.avg_eval_lap_time is not None:
+            return lap_time <= best.avg_eval_lap_time
         if self.params.best_model_metric == "laptime":
             return metric <= best.avg_eval_metric
         return metric >= best.avg_eval_metric
@@ -137,15 +145,17 @@ class CheckpointStore:
         })
 
     def save(self, payload: bytes | Callable[[Path], object], *, iteration: int, steps: int,
-             metric: float | None = None, time_stamp: float | None = None) -> Path:
+             metric: float | None = None, time_stamp: float | None = None,
+             lap_time: float | None = None) -> Path:
         """Write a checkpoint atomically, update deepracer_checkpoints.json, prune old ones.
 
         payload: the checkpoint bytes, or a callable writing the checkpoint to the path it is
         given. metric: the checkpoint's mean evaluation metric (None if not evaluated yet; see
-        `record_metric`). Returns the checkpoint's path.
+        `record_metric`). lap_time: the mean lap time of its evaluation laps, s, when they all
+        lapped (breaks ties of the metric). Returns the checkpoint's path.
         """
         name = checkpoint_name(iteration, steps)
-        value = _check_metric(metric)
+        value, lap_time = _check_metric(metric), _check_metric(lap_time)
         path = self.folder.model_dir / name
         if isinstance(payload, (bytes, bytearray, memoryview)):
             atomic_write_bytes(path, payload)
@@ -154,9 +164,9 @@ class CheckpointStore:
         else:
             raise TypeError(f"checkpoint payload must be bytes or a callable writing to a path, "
                             f"got {type(payload).__name__}")
-        record = CheckpointRecord(name, value, time.time() if time_stamp is None else float(time_stamp))
+        record = CheckpointRecord(name, value, time.time() if time_stamp is None else float(time_stamp), lap_time)
         best, _ = self._records()
-        self._write_records(record if self._is_better(value, best) else best, record)
+        self._write_records(record if self._is_better(value, best, lap_time) else best, record)
         self._prune()
         return path
 

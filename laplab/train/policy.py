@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import gymnasium as gym
@@ -38,7 +38,7 @@ class ModelPolicy:
 
     def act(self, observations: Any, deterministic: bool = True) -> np.ndarray:
         if hasattr(self.learner, "model"):  # PPO
-            return self.learner.act(observations, deterministic).env_action
+            return self.learner.act(observations, deterministic, with_value=False).env_action
         return self.learner.act(observations, deterministic)  # SAC
 
     @property
@@ -58,6 +58,7 @@ def load_model_policy(name: str, checkpoint: str = "best", seed: int = 0) -> Mod
     metadata = config.metadata()
     sim = Simulator(load_track(config.track), 1, vehicle_preset(config.vehicle))
     space = ObservationBuilder(sim, metadata, stack_size=config.hyper().stack_size).single_space
-    learner = build_learner(config, space, seed)
+    # Driving, evaluation and export run in float32 whatever the training precision was.
+    learner = build_learner(replace(config, precision="float32"), space, seed)
     learner.load_state_dict(state["learner"])
     return ModelPolicy(name, folder, config, metadata, path.name, learner, space)

@@ -76,7 +76,7 @@ def build_learner(config: TrainConfig, observation_space, seed: int):
     threads = config.num_threads or (1 if metadata.camera is None else None)
     learner_class = SACLearner if metadata.training_algorithm == "sac" else PPOLearner
     return learner_class(observation_space, action_space, hp, metadata.neural_network, seed=seed,
-                         num_threads=threads)
+                         num_threads=threads, precision=config.precision)
 
 
 def checkpoint_bytes(learner, iteration: int, env_steps: int, episodes: int, best_lap_time: float | None) -> bytes:
@@ -167,8 +167,8 @@ class Trainer:
                 return action, action, zeros, zeros
             return act
 
-        def act(obs):
-            step = learner.act(obs, deterministic)
+        def act(obs):  # greedy evaluation laps need no values: the value network does not run
+            step = learner.act(obs, deterministic, with_value=not deterministic)
             return step.action, step.env_action, step.log_prob, step.value
         return act
 
@@ -232,9 +232,13 @@ class Trainer:
         self._iteration_rows.append(asdict(report))
         atomic_write_json(self.iterations_log, {"iterations": self._iteration_rows}, indent=None)
 
-    def _save_checkpoint(self, eval_progress: float) -> None:
+    def _save_checkpoint(self, evaluation: EpisodeBatch) -> None:
+        """Checkpoint this iteration; its metric is the mean progress of the evaluation laps, and when
+        they all lapped their mean lap time breaks ties (the faster of two lapping checkpoints is best)."""
         payload = checkpoint_bytes(self.learner, self.iteration, self.env_steps, self.episodes, self.best_lap)
-        self.checkpoints.save(payload, iteration=self.iteration, steps=self.env_steps, metric=eval_progress)
+        lap_time = float(evaluation.lap_time.mean()) if evaluation.completed.all() else None
+        self.checkpoints.save(payload, iteration=self.iteration, steps=self.env_steps,
+                              metric=float(evaluation.progress.mean()), lap_time=lap_time)
 
     def save_initial_checkpoint(self) -> None:
         """Checkpoint 0 (untrained weights): a brand-new folder is loadable from the start."""
@@ -283,7 +287,7 @@ class Trainer:
             if np.isfinite(laps).any():
                 best = float(np.nanmin(laps))
                 self.best_lap = best if self.best_lap is None else min(self.best_lap, best)
-            self._save_checkpoint(eval_progress)
+            self._save_checkpoint(evaluation)
             eval_laps = evaluation.lap_time[np.isfinite(evaluation.lap_time)]
             wall = time.perf_counter() - t0
             elapsed = time.perf_counter() - started

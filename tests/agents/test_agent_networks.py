@@ -6,8 +6,10 @@ import pytest
 import torch
 from torch import nn
 
+from laplab.agents import networks
 from laplab.agents.networks import (ActionSpec, ActorCritic, CameraEmbedder, SquashedGaussianActor, TwinQ,
-                                    action_spec_from, build_embedder, squashed_gaussian_log_prob)
+                                    action_spec_from, build_embedder, resolve_precision, set_compute_precision,
+                                    squashed_gaussian_log_prob)
 
 CAMERA = gym.spaces.Box(0, 255, (1, 120, 160), np.uint8)
 STEREO = gym.spaces.Box(0, 255, (2, 120, 160), np.uint8)
@@ -148,3 +150,41 @@ def test_squashed_log_prob_matches_change_of_variables():
     normal = torch.distributions.Normal(torch.tensor([[0.1, 0.0]]), torch.tensor([[0.5, 2.0]]))
     expected = (normal.log_prob(u) - torch.log(1 - torch.tanh(u) ** 2)).sum(-1)
     torch.testing.assert_close(squashed_gaussian_log_prob(u, normal), expected)
+
+
+STATE_VECTOR = gym.spaces.Box(-np.inf, np.inf, (27,), np.float32)
+
+
+def test_auto_precision_is_bfloat16_only_for_camera_networks_on_native_hardware(monkeypatch):
+    camera, state = ActorCritic(CAMERA, 5), ActorCritic(STATE_VECTOR, 5, "MLP")
+    assert resolve_precision("auto", state) == "float32"
+    for native in (True, False):
+        monkeypatch.setattr(networks, "native_bfloat16", lambda: native)
+        assert resolve_precision("auto", camera) == ("bfloat16" if native else "float32")
+    assert resolve_precision("bfloat16", state) == "bfloat16"
+    with pytest.raises(ValueError, match="precision must be one of"):
+        resolve_precision("float16", camera)
+
+
+def test_bfloat16_trunks_keep_float32_weights_features_and_gradients():
+    torch.manual_seed(0)
+    model = ActorCritic(CAMERA, 5)
+    images = torch.randint(0, 256, (4, 1, 120, 160), dtype=torch.uint8)
+    reference_dist, reference_values = model(images)
+    assert set_compute_precision(model, "bfloat16") == "bfloat16"
+    dist, values = model(images)
+    assert dist.logits.dtype == values.dtype == torch.float32
+    # bfloat16 keeps 8 bits of mantissa: features agree to ~1 %, not to float32's 1e-6.
+    assert torch.allclose(values, reference_values, rtol=0.05, atol=0.02)
+    assert not torch.equal(values, reference_values)
+    (values.sum() + dist.logits.sum()).backward()
+    assert all(p.dtype == torch.float32 and p.grad is not None and torch.isfinite(p.grad).all()
+               for p in model.parameters() if p.requires_grad and p is not model.log_std)
+    set_compute_precision(model, "float32")
+    assert torch.equal(model(images)[1], reference_values)
+
+
+def test_distribution_alone_matches_the_full_forward():
+    model = ActorCritic(CAMERA, 5)
+    images = torch.randint(0, 256, (3, 1, 120, 160), dtype=torch.uint8)
+    assert torch.equal(model.distribution(images).logits, model(images)[0].logits)

@@ -132,3 +132,16 @@ def test_rollout_shape_mismatch_is_named():
     rollout = _one_step_rollout(obs, step, np.zeros(4))._replace(rewards=np.zeros((4, 1)))
     with pytest.raises(ValueError, match=r"Rollout\.rewards has shape \(4, 1\)"):
         learner.update(rollout)
+
+
+def test_bfloat16_learner_learns_the_bandit_and_acts_without_values():
+    learner = PPOLearner(STATE, 4, FAST, "MLP", seed=0, num_threads=1, precision="bfloat16")
+    assert learner.precision == "bfloat16"
+    obs = np.ones((64, 1), np.float32)
+    for _ in range(10):
+        step = learner.act(obs)
+        learner.update(_one_step_rollout(obs, step, (step.env_action == 2).astype(np.float32)))
+    assert _probability(learner, obs, 2) > 0.8
+    greedy = learner.act(obs[:3], deterministic=True, with_value=False)
+    assert np.isnan(greedy.value).all() and greedy.value.shape == (3,)
+    np.testing.assert_array_equal(greedy.action, learner.act(obs[:3], deterministic=True).action)

@@ -80,3 +80,18 @@ def test_errors_are_clear(tmp_path):
         checkpoint_name(1, -5)
     with pytest.raises(ValueError, match="keep_last"):
         CheckpointParams(keep_last=0)
+
+
+def test_lap_time_breaks_ties_among_checkpoints_that_lap(tmp_path):
+    store = _store(tmp_path)
+    runs = [(90.0, None), (100.0, 7.5), (100.0, 6.9), (100.0, 8.2), (100.0, None), (99.0, None)]
+    for iteration, (progress, lap) in enumerate(runs):
+        store.save(b"w", iteration=iteration, steps=iteration, metric=progress, lap_time=lap)
+    best = json.loads(store.folder.deepracer_checkpoints.read_text())["best_checkpoint"]
+    # the 6.9 s checkpoint stays best: slower laps lose the tie; a tie without a lap time goes to the newer
+    assert best["name"] == "4_Step-4.ckpt" and "avg_eval_lap_time" not in best
+    store = _store(tmp_path / "again")
+    for iteration, (progress, lap) in enumerate(runs[:4]):
+        store.save(b"w", iteration=iteration, steps=iteration, metric=progress, lap_time=lap)
+    best = store.best()
+    assert (best.name, best.avg_eval_lap_time) == ("2_Step-2.ckpt", 6.9)
