@@ -2,16 +2,21 @@
 3 of 3 evaluation laps (run after every iteration), with the default reward and settings.
 
 Prints, per track and sensor, the median over seeds of: wall time to 3/3 laps, iterations, env steps,
-the best lap time reached by then, and training throughput (env steps/s, collection + learning).
+the best lap time reached by then, and training throughput (training env steps per wall second,
+collection + learning + evaluation laps + checkpoints), with the share of the wall time each took.
+``--min-time S`` keeps training for at least S seconds after the first 3/3, so the throughput is the
+steady state's rather than the first iteration's.
 
 Usage:
   python bench/time_to_lap.py [--seeds 0 1 2] [--tracks classic_2018 ../shared/reference-tracks/reinvent_base.npy]
-                              [--sensor STATE|FRONT_FACING_CAMERA] [--budget 600]
+                              [--sensor STATE|FRONT_FACING_CAMERA] [--budget 600] [--min-time 0]
+                              [--precision auto|float32|bfloat16] [--hyperparameters '{"num_epochs": 5}']
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import tempfile
@@ -23,28 +28,38 @@ REFERENCE = Path(__file__).resolve().parents[1].parent / "shared" / "reference-t
 DEFAULT_TRACKS = ["classic_2018", str(REFERENCE / "reinvent_base.npy"), str(REFERENCE / "2022_summit_speedway.npy")]
 
 
-def time_to_lap(track: str, seed: int, sensor: str, budget_s: float) -> dict:
+def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s: float = 0.0,
+                precision: str = "auto", hyperparameters: dict | None = None) -> dict:
     from laplab.env.metadata import ModelMetadata
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import create_training
 
     metadata = replace(ModelMetadata(), sensors=(sensor,)).to_dict()
-    config = replace(TrainConfig(), track=track, seed=seed, max_time_s=budget_s, model_metadata=metadata)
+    config = replace(TrainConfig(), track=track, seed=seed, max_time_s=budget_s, model_metadata=metadata,
+                     precision=precision)
+    if hyperparameters:
+        config = replace(config, hyperparameters={**config.hyper().to_dict(), **hyperparameters})
     name = f"bench-{Path(track).stem.replace('_', '-')}-{seed}-{int(time.time() * 1000) % 10**8}"
     trainer = create_training(name, config)
     first: dict = {}
+    seconds: dict[str, float] = {}
 
     def on_iteration(report) -> None:
+        for key, value in report.seconds.items():
+            seconds[key] = seconds.get(key, 0.0) + value
         if not first and report.eval_completed == report.eval_episodes:
             first.update(wall=report.elapsed_s, iterations=report.iteration, steps=report.env_steps,
                          lap=report.eval_lap_time, best=report.best_lap_time)
 
     started = time.perf_counter()
-    result = trainer.run(callbacks=(on_iteration,), should_stop=lambda: bool(first))
+    done = lambda: bool(first) and time.perf_counter() - started >= min_time_s
+    result = trainer.run(callbacks=(on_iteration,), should_stop=done)
     elapsed = time.perf_counter() - started
+    total = sum(seconds.values()) or 1.0
     return {"lapped": bool(first), "wall": first.get("wall", float("nan")), "iterations": first.get("iterations", result.iterations),
             "steps": first.get("steps", result.env_steps), "eval_lap": first.get("lap"),
-            "throughput": result.env_steps / max(elapsed, 1e-9)}
+            "throughput": result.env_steps / max(elapsed, 1e-9),
+            "shares": {key: value / total for key, value in seconds.items()}}
 
 
 def main() -> None:
@@ -53,21 +68,27 @@ def main() -> None:
     parser.add_argument("--tracks", nargs="+", default=DEFAULT_TRACKS)
     parser.add_argument("--sensor", default="STATE")
     parser.add_argument("--budget", type=float, default=600.0, help="give up after this many seconds per run")
+    parser.add_argument("--min-time", type=float, default=0.0, help="train at least this many seconds")
+    parser.add_argument("--precision", default="auto")
+    parser.add_argument("--hyperparameters", default="{}", help="JSON of hyperparameters to override")
     args = parser.parse_args()
     os.environ.setdefault("LAPLAB_HOME", tempfile.mkdtemp(prefix="laplab-bench-"))
     print(f"{'track':28s} {'sensor':20s} {'lapped':>6s} {'time to 3/3 s':>13s} {'iters':>5s} "
-          f"{'env steps':>9s} {'eval lap s':>10s} {'steps/s':>8s}")
+          f"{'env steps':>9s} {'eval lap s':>10s} {'steps/s':>8s}  time shares")
     for track in args.tracks:
         if track.endswith(".npy") and not Path(track).is_file():
             print(f"{Path(track).name:28s} skipped: file not found")
             continue
-        runs = [time_to_lap(track, seed, args.sensor, args.budget) for seed in args.seeds]
+        runs = [time_to_lap(track, seed, args.sensor, args.budget, args.min_time, args.precision,
+                            json.loads(args.hyperparameters)) for seed in args.seeds]
         lapped = [r for r in runs if r["lapped"]]
         med = lambda key: statistics.median(r[key] for r in lapped) if lapped else float("nan")
         laps = [r["eval_lap"] for r in lapped if r["eval_lap"]]
         print(f"{Path(track).stem:28s} {args.sensor:20s} {len(lapped)}/{len(runs):<4d} {med('wall'):13.1f} "
               f"{med('iterations'):5.0f} {med('steps'):9.0f} {statistics.median(laps) if laps else float('nan'):10.2f} "
-              f"{statistics.median(r['throughput'] for r in runs):8.0f}")
+              f"{statistics.median(r['throughput'] for r in runs):8.0f}  "
+              + " ".join(f"{key} {statistics.median(r['shares'].get(key, 0.0) for r in runs):.0%}"
+                         for key in runs[0]["shares"]))
 
 
 if __name__ == "__main__":

@@ -36,7 +36,7 @@ SMALL_HP = {"num_episodes_between_training": 4, "batch_size": 32, "num_epochs": 
 
 def train_small(name: str, **meta) -> None:
     config = TrainConfig()
-    config = replace(config, hyperparameters={**config.hyperparameters, **SMALL_HP},
+    config = replace(config, hyperparameters={**config.hyper().to_dict(), **SMALL_HP},
                      model_metadata={**ModelMetadata().to_dict(), **meta}, max_time_s=120, max_episodes=8)
     create_training(name, config).run()
 

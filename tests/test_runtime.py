@@ -169,7 +169,7 @@ def test_state_model_runtime_matches_the_trained_policy(tmp_path, monkeypatch):
 
     monkeypatch.setenv("LAPLAB_HOME", str(tmp_path / "home"))
     base = TrainConfig()
-    hyper = {**base.hyperparameters, "num_episodes_between_training": 4, "batch_size": 32, "num_epochs": 3}
+    hyper = {**base.hyper().to_dict(), "num_episodes_between_training": 4, "batch_size": 32, "num_epochs": 3}
     create_training("state", replace(base, hyperparameters=hyper, model_metadata=ModelMetadata().to_dict(),
                                      max_episodes=8)).run()
     export_model_onnx("state", "best", tmp_path / "car")

@@ -54,8 +54,8 @@ class Hyperparameters:
     loss_type: str = "huber"
     num_episodes_between_training: int = 20
     stack_size: int = 1
-    term_cond_max_episodes: int = 1000
-    term_cond_avg_score: float = 350.0
+    term_cond_max_episodes: int = 100_000  # laplab: time stops training (DRfC: 1000)
+    term_cond_avg_score: float = 100_000.0  # laplab: time stops training (DRfC: 350)
     sac_alpha: float = 0.2
 
     def __post_init__(self) -> None:

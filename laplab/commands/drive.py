@@ -13,7 +13,7 @@ from rich.table import Table
 def register(subparsers) -> None:
     parser = subparsers.add_parser("drive", help="drive the built-in pure-pursuit policy round a track and score it")
     parser.add_argument("--track", default=None, help="track name or .npy path (default: classic_2018)")
-    parser.add_argument("--reward", default=None, help="reward_function.py (default: follow the centre line)")
+    parser.add_argument("--reward", default=None, help="reward_function.py (default: laplab's lap_pace example)")
     parser.add_argument("--laps", type=int, default=3, help="laps to drive, each from the round-robin start")
     parser.add_argument("--speed", type=float, default=1.5, help="target speed of the built-in policy, m/s")
     parser.set_defaults(func=run)

@@ -11,7 +11,7 @@ def register(subparsers) -> None:
     parser = subparsers.add_parser("run", help="train a model with the defaults, evaluate it, write its report")
     parser.add_argument("--name", default=None, help="model name (default: run-<date>-<time>)")
     parser.add_argument("--track", default=None, help="track name or .npy path (default: classic_2018)")
-    parser.add_argument("--reward", default=None, help="reward_function.py (default: follow the centre line)")
+    parser.add_argument("--reward", default=None, help="reward_function.py (default: laplab's lap_pace example)")
     parser.add_argument("--max-time", default="5m", help="training time limit (default 5m; DeepRacer's "
                                                          "average-score stop condition may end it sooner)")
     parser.add_argument("--trials", type=int, default=3, help="evaluation trials (default 3)")

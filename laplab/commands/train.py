@@ -13,7 +13,7 @@ from rich.console import Console
 def _add_job_options(parser: argparse.ArgumentParser, defaults: bool) -> None:
     none = None
     parser.add_argument("--track", default=none, help="track name or .npy path (default: classic_2018)")
-    parser.add_argument("--reward", default=none, help="reward_function.py (default: follow the centre line)")
+    parser.add_argument("--reward", default=none, help="reward_function.py (default: laplab's lap_pace example)")
     parser.add_argument("--model-metadata", default=none, help="model_metadata.json (action space, sensors, network)")
     parser.add_argument("--hyperparameters", default=none, help="hyperparameters.json")
     parser.add_argument("--max-time", default="20m" if defaults else none, help="stop after this long (e.g. 90s, 20m, 1h)")

@@ -26,7 +26,7 @@ class TimeTrialEnv(gym.Env):
     first (C = cameras x ``stack_size``); several sensors give a Dict keyed by sensor name.
 
     Rewards: ``reward_function(params)`` on a fresh DeepRacer params dict each step (default:
-    DeepRacer's follow-the-centre-line example; ``None``: reward 0).
+    laplab's default, the ``lap_pace`` example; ``None``: reward 0).
 
     Starting state: at rest, origin on the centre line, facing along it, at the start fraction of the
     lap given by ``options["start_ndist"]`` or else by the round-robin schedule of ``episode``

@@ -21,7 +21,7 @@ from laplab.vehicle.params import DEEPRACER, VehicleParams
 
 _STATUS_OBJECTS = np.array(STATUS_NAMES, dtype=object)
 EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "reward" / "examples"
-DEFAULT_REWARD = EXAMPLES_DIR / "follow_centerline.py"
+DEFAULT_REWARD = EXAMPLES_DIR / "lap_pace.py"  # laplab's default (docs/deviations.md)
 
 RewardSpec = str | os.PathLike | Callable[[dict], float] | None
 
@@ -78,7 +78,7 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
     lidars their DeepRacer vector (:mod:`laplab.sensors.lidar`).
 
     Rewards: the user's ``reward_function(params)`` called once per car and step with a fresh params
-    dict (``None``: no reward function, reward 0; default: DeepRacer's follow-the-centre-line example).
+    dict (``None``: no reward function, reward 0; default: laplab's default, the ``lap_pace`` example).
 
     Starting state: at rest on the centre line, at the round-robin start of
     :class:`~laplab.sim.state.EpisodeParams` (car i of the batch starts i x 0.05 of a lap further).

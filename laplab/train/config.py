@@ -24,8 +24,9 @@ class TrainConfig:
 
     - ``track``: name or path; ``reverse``: drive it the other way; ``alternate_direction``: switch
       direction every episode.
-    - ``reward_path``: the reward file (None: DeepRacer's follow-the-centre-line example).
-    - ``model_metadata`` / ``hyperparameters``: DeepRacer's JSON forms (validated).
+    - ``reward_path``: the reward file (None: laplab's default, the ``lap_pace`` example).
+    - ``model_metadata`` / ``hyperparameters``: DeepRacer's JSON forms (validated); hyperparameters
+      None: laplab's defaults for this model (:func:`default_hyperparameters`).
     - ``max_time_s``: stop after this much wall time; ``max_episodes``: after this many training
       episodes (default: ``term_cond_max_episodes``); the average score stop uses
       ``term_cond_avg_score`` against the mean total reward of the last iteration's episodes.
@@ -43,7 +44,7 @@ class TrainConfig:
     track: str = DEFAULT_TRACK
     reward_path: str | None = None
     model_metadata: dict = field(default_factory=lambda: ModelMetadata().to_dict())
-    hyperparameters: dict = field(default_factory=lambda: Hyperparameters().to_dict())
+    hyperparameters: dict | None = None
     max_time_s: float = 20 * 60.0
     max_episodes: int | None = None
     eval_episodes: int = 3
@@ -72,6 +73,8 @@ class TrainConfig:
         return metadata_from_dict(self.model_metadata, "model_metadata")
 
     def hyper(self) -> Hyperparameters:
+        if self.hyperparameters is None:
+            return default_hyperparameters(self.metadata())
         return hyperparameters_from_dict(self.hyperparameters, "hyperparameters")
 
     @property
@@ -82,7 +85,9 @@ class TrainConfig:
         return EpisodeParams(reverse=self.reverse, alternate_direction=self.alternate_direction)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The config with every value written out (laplab.json: a resumed job keeps its
+        hyperparameters even if laplab's defaults change)."""
+        return {**asdict(self), "hyperparameters": self.hyper().to_dict()}
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "laplab.json") -> "TrainConfig":
@@ -91,6 +96,15 @@ class TrainConfig:
         if unknown:
             raise ConfigError(f"{source}: unknown key {unknown[0]!r}")
         return cls(**data)
+
+
+def default_hyperparameters(metadata: ModelMetadata) -> Hyperparameters:
+    """The console's defaults, except for camera models: deepracer-for-cloud's ``num_epochs`` 5
+    instead of 10. A camera network's updates take most of a CPU's training time, and 5 passes per
+    iteration reach a lapping model sooner in wall time (BENCHMARKS.md, time to a model that laps)."""
+    if metadata.camera is not None:
+        return Hyperparameters(num_epochs=5)
+    return Hyperparameters()
 
 
 _DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(s|sec|m|min|h|hr)?\s*$", re.IGNORECASE)

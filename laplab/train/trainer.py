@@ -52,6 +52,9 @@ class IterationReport:
     elapsed_s: float
     time_left_s: float
     losses: dict[str, float] = field(default_factory=dict)
+    # wall seconds of this iteration spent collecting episodes, learning, on evaluation laps and on
+    # writing logs and the checkpoint
+    seconds: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -269,10 +272,13 @@ class Trainer:
                 if should_stop():  # a signal during collection: keep the last complete model
                     reason = "stopped"
                     break
+                t1 = time.perf_counter()
                 losses = self._learn(batch)
                 self.iteration += 1
                 self.env_steps += batch.env_steps
+                t2 = time.perf_counter()
                 evaluation = self._evaluate()
+                t3 = time.perf_counter()
             except CollectionAborted:  # the partial iteration is dropped; the last checkpoint stands
                 reason = "stopped" if should_stop() else "max_time"
                 break
@@ -290,6 +296,7 @@ class Trainer:
             self._save_checkpoint(evaluation)
             eval_laps = evaluation.lap_time[np.isfinite(evaluation.lap_time)]
             wall = time.perf_counter() - t0
+            seconds = {"collect": t1 - t0, "learn": t2 - t1, "evaluate": t3 - t2, "save": t0 + wall - t3}
             elapsed = time.perf_counter() - started
             report = IterationReport(
                 iteration=self.iteration, episodes=self.episodes, env_steps=self.env_steps,
@@ -298,7 +305,8 @@ class Trainer:
                 eval_completed=int(evaluation.completed.sum()), eval_episodes=len(evaluation.status),
                 best_lap_time=self.best_lap, eval_lap_time=float(eval_laps.mean()) if eval_laps.size else None,
                 steps_per_second=(batch.env_steps + evaluation.env_steps) / max(wall, 1e-9),
-                elapsed_s=elapsed, time_left_s=max(cfg.max_time_s - elapsed, 0.0), losses=losses)
+                elapsed_s=elapsed, time_left_s=max(cfg.max_time_s - elapsed, 0.0), losses=losses,
+                seconds=seconds)
             self._log_iteration(report)
             for callback in callbacks:
                 callback(report)

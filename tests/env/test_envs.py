@@ -46,14 +46,17 @@ def test_env_checker_passes(kwargs):
 
 def test_single_env_spaces_reset_and_step():
     env = TimeTrialEnv(track="oval")
-    assert env.action_space == gym.spaces.Discrete(5)
+    assert env.action_space == gym.spaces.Discrete(21)  # laplab's default: 7 steering x 3 speeds
     assert env.observation_space.shape == (OBS_SIZE,) and env.observation_space.dtype == np.float32
     obs, info = env.reset(seed=1)
     assert obs in env.observation_space
     assert info == {"episode_status": "in_progress", "progress": 0.0, "steps": 0}
     obs, reward, terminated, truncated, info = env.step(2)
     assert obs in env.observation_space and obs[0] > 0  # moving
-    assert isinstance(reward, float) and reward == 1.0  # on the centre line: the default reward's best band
+    # the default reward (lap_pace): the pace so far squared plus up to 0.1 for the centre
+    expected = (info["params"]["progress"] / 1.0) ** 2 + 0.1 * (1 - info["params"]["distance_from_center"]
+                                                                 / (0.5 * info["params"]["track_width"]))
+    assert isinstance(reward, float) and reward == pytest.approx(expected) and reward > 0.09
     assert (terminated, truncated) == (False, False)
     assert set(info) == {"episode_status", "progress", "steps", "params"}
     assert info["steps"] == 1 and info["params"]["steps"] == 1.0 and info["progress"] == info["params"]["progress"]
@@ -162,8 +165,8 @@ def test_vector_env_spaces():
     assert env.num_envs == 4
     assert env.single_observation_space.shape == (OBS_SIZE,)
     assert env.observation_space.shape == (4, OBS_SIZE)
-    assert env.single_action_space == gym.spaces.Discrete(5)
-    assert env.action_space == gym.spaces.MultiDiscrete([5, 5, 5, 5])
+    assert env.single_action_space == gym.spaces.Discrete(21)
+    assert env.action_space == gym.spaces.MultiDiscrete([21, 21, 21, 21])
     cont = TimeTrialVectorEnv(3, track="oval", model_metadata=CONTINUOUS)
     assert cont.single_action_space == gym.spaces.Box(-1, 1, (2,), np.float32)
     assert cont.action_space.shape == (3, 2)

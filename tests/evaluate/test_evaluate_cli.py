@@ -27,7 +27,7 @@ def home(tmp_path_factory):
     with pytest.MonkeyPatch.context() as patch:
         root = tmp_path_factory.mktemp("home")
         patch.setenv("LAPLAB_HOME", str(root))
-        hyper = {**TrainConfig().hyperparameters, "num_episodes_between_training": 4, "batch_size": 32,
+        hyper = {**TrainConfig().hyper().to_dict(), "num_episodes_between_training": 4, "batch_size": 32,
                  "num_epochs": 3}
         config = replace(TrainConfig(), hyperparameters=hyper, model_metadata=ModelMetadata().to_dict(),
                          max_episodes=8, max_time_s=120)

@@ -34,7 +34,7 @@ def laplab_home(tmp_path, monkeypatch):
 
 
 def small_config(**changes) -> TrainConfig:
-    hyper = {**TrainConfig().hyperparameters, **SMALL_HP, **changes.pop("hyper", {})}
+    hyper = {**TrainConfig().hyper().to_dict(), **SMALL_HP, **changes.pop("hyper", {})}
     meta = {**ModelMetadata().to_dict(), **changes.pop("meta", {})}
     return replace(TrainConfig(), hyperparameters=hyper, model_metadata=meta, max_time_s=120, **changes)
 
@@ -87,10 +87,10 @@ def test_learning_improves_progress():
     hyper = {"num_episodes_between_training": 10, "num_epochs": 10, "batch_size": 64}
     trainer = create_training("learner", small_config(max_episodes=10**6, hyper=hyper))
     reports = []
-    trainer.run(callbacks=(reports.append,), should_stop=lambda: len(reports) >= 6)
+    trainer.run(callbacks=(reports.append,), should_stop=lambda: len(reports) >= 12)
     first, last = reports[0], reports[-1]
-    assert max(r.mean_progress for r in reports[-2:]) > first.mean_progress + 15, [r.mean_progress for r in reports]
-    assert last.episodes == 60
+    assert max(r.mean_progress for r in reports[-3:]) > first.mean_progress + 15, [r.mean_progress for r in reports]
+    assert last.episodes == 120
 
 
 def test_a_model_name_is_immutable():
@@ -117,9 +117,14 @@ def test_clone_keeps_action_space_and_starts_from_the_weights(tmp_path):
 
 
 def test_reward_function_failing_mid_training_stops_and_keeps_checkpoints(tmp_path):
+    from laplab.env.action_space import default_action_space
+    from laplab.reward.validate import sweep_params
+    from laplab.track.registry import DEFAULT_TRACK, load_track
+    # fails 2000 calls into training, after the validation sweep's calls
+    limit = len(sweep_params(load_track(DEFAULT_TRACK), default_action_space())) + 2000
     reward = tmp_path / "reward_function.py"
     reward.write_text("CALLS = [0]\n\n\ndef reward_function(params):\n    CALLS[0] += 1\n"
-                      "    if CALLS[0] > 3000:\n        raise ValueError('boom at call %d' % CALLS[0])\n    return 1.0\n")
+                      f"    if CALLS[0] > {limit}:\n        raise ValueError('boom at call %d' % CALLS[0])\n    return 1.0\n")
     trainer = create_training("faulty", small_config(reward_path=str(reward), max_episodes=10**6))
     result = trainer.run()
     assert result.stop_reason == "reward_error"
@@ -147,7 +152,7 @@ def test_bad_hyperparameters_name_the_key(tmp_path, capsys):
 
 def test_resume_after_sigkill_continues_the_iteration_count(laplab_home, tmp_path):
     hp = tmp_path / "hyperparameters.json"
-    hp.write_text(json.dumps({**TrainConfig().hyperparameters, **SMALL_HP}))
+    hp.write_text(json.dumps({**TrainConfig().hyper().to_dict(), **SMALL_HP}))
     env = {**os.environ, "LAPLAB_HOME": str(laplab_home)}
     cmd = [sys.executable, "-m", "laplab.cli", "train", "--name", "killed", "--hyperparameters", str(hp),
            "--max-time", "10m", "--quiet"]
@@ -196,3 +201,15 @@ def test_deepracer_utils_reads_a_freshly_trained_model():
     metrics = logs.TrainingMetrics(bucket=None, fname=str(folder.training_metrics))
     summary = metrics.getSummary()
     assert len(summary) >= 1
+
+
+def test_default_hyperparameters_follow_the_sensor():
+    from laplab.env.metadata import ModelMetadata
+    state, camera = TrainConfig(), replace(TrainConfig(), model_metadata=replace(
+        ModelMetadata(), sensors=("FRONT_FACING_CAMERA",)).to_dict())
+    assert state.hyperparameters is None and state.hyper().num_epochs == 10  # the console's
+    assert camera.hyper().num_epochs == 5  # deepracer-for-cloud's, for camera networks
+    # laplab.json writes the values out, so a resumed job keeps them
+    assert TrainConfig.from_dict(camera.to_dict()).hyperparameters["num_epochs"] == 5
+    given = replace(camera, hyperparameters={**camera.hyper().to_dict(), "num_epochs": 8})
+    assert given.hyper().num_epochs == 8
