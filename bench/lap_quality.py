@@ -28,12 +28,10 @@ from dataclasses import replace
 
 def standing_optimum(track_name: str) -> tuple[float, float]:
     """(flying, standing-start) lap times of the race line, s."""
-    from laplab.sim.line_follower import standing_start_lap_time
-    from laplab.track.raceline_cache import raceline_for
+    from laplab.track.raceline_cache import optimal_lap_time, standing_start_optimal_lap_time
     from laplab.track.registry import load_track
-    from laplab.vehicle.params import DEEPRACER
-    line = raceline_for(load_track(track_name), DEEPRACER)
-    return line.lap_time, standing_start_lap_time(line.arc_length, line.speeds, DEEPRACER.max_acceleration)
+    track = load_track(track_name)
+    return optimal_lap_time(track), standing_start_optimal_lap_time(track)
 
 
 def train_and_evaluate(track: str, seed: int, minutes: list[float]) -> dict:

@@ -42,7 +42,8 @@ def output_stem(track_name: str) -> str:
 
 
 def raceline_command(args: argparse.Namespace) -> int:
-    from laplab.sim.line_follower import drive_line, standing_start_lap_time
+    from laplab.sim.line_follower import drive_line
+    from laplab.track.speed_profile import standing_start_lap_time
     from laplab.sim.state import LAP_COMPLETE, STATUS_NAMES
     from laplab.track.raceline import FAST_SETTINGS, RaceLineSettings
     from laplab.track.raceline_cache import raceline_cache_path, raceline_for

@@ -3,6 +3,6 @@ cache shared with ``laplab raceline`` (``$LAPLAB_HOME/cache``), so evaluations a
 do not solve the race line again."""
 
 from laplab.track.raceline_cache import cache_folder as cache_dir
-from laplab.track.raceline_cache import optimal_lap_time
+from laplab.track.raceline_cache import optimal_lap_time, standing_start_optimal_lap_time
 
-__all__ = ["cache_dir", "optimal_lap_time"]
+__all__ = ["cache_dir", "optimal_lap_time", "standing_start_optimal_lap_time"]

@@ -72,6 +72,8 @@ class EvaluationSummary:
     - ``off_track_count``, ``reset_count``, ``penalty_time``: totals over the trials.
     - ``optimal_lap_time``: the race line's lap time on this track and car, s (None if unknown);
       ``gap_to_optimal`` = best_lap / optimal_lap_time (1.0 = as fast as the race line).
+      The race line's lap is a flying lap; ``standing_start_lap_time`` (s) is the same line driven
+      from rest, the fastest possible lap for a trial that starts at rest.
     """
 
     trials: int
@@ -86,6 +88,7 @@ class EvaluationSummary:
     penalty_time: float
     optimal_lap_time: float | None = None
     gap_to_optimal: float | None = None
+    standing_start_lap_time: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -126,7 +129,7 @@ def gap_to_optimal(lap_time: float | None, optimal_lap_time: float | None) -> fl
 
 
 def summarize(trials: list[TrialResult] | tuple[TrialResult, ...],
-              optimal_lap_time: float | None = None) -> EvaluationSummary:
+              optimal_lap_time: float | None = None, standing_start_lap_time: float | None = None) -> EvaluationSummary:
     """The summary of ``trials`` (in trial order); see :class:`EvaluationSummary`."""
     if not trials:
         raise ValueError("summarize: an evaluation needs at least one trial")
@@ -142,7 +145,8 @@ def summarize(trials: list[TrialResult] | tuple[TrialResult, ...],
         off_track_count=int(sum(t.off_track_count for t in trials)),
         reset_count=int(sum(t.reset_count for t in trials)),
         penalty_time=float(sum(t.penalty_time for t in trials)),
-        optimal_lap_time=optimal_lap_time, gap_to_optimal=gap_to_optimal(best, optimal_lap_time))
+        optimal_lap_time=optimal_lap_time, gap_to_optimal=gap_to_optimal(best, optimal_lap_time),
+        standing_start_lap_time=standing_start_lap_time)
 
 
 def format_seconds(value: float | None) -> str:
@@ -173,7 +177,10 @@ def trials_table(trials, optimal_lap_time: float | None = None, title: str | Non
 def summary_lines(summary: EvaluationSummary) -> list[str]:
     """The summary as a few printable lines."""
     optimal = ("unknown" if summary.optimal_lap_time is None
-               else f"{summary.optimal_lap_time:.3f} s (race line)")
+               else f"{summary.optimal_lap_time:.3f} s (race line, flying")
+    if summary.optimal_lap_time is not None:
+        standing = summary.standing_start_lap_time
+        optimal += ")" if standing is None else f"; {standing:.3f} s from a standing start)"
     return [
         f"best lap {format_seconds(summary.best_lap)} s   average {format_seconds(summary.average_lap)} s   "
         f"average of 3 consecutive {format_seconds(summary.average_3)} s",

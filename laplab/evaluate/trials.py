@@ -157,7 +157,8 @@ def _actor(policy: Any, stochastic: bool) -> Callable[[Any], np.ndarray]:
 
 def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = EvaluationSettings(), *,
                     metadata: ModelMetadata | None = None, vehicle: VehicleParams | None = None,
-                    optimal_lap_time: float | None = None) -> EvaluationResult:
+                    optimal_lap_time: float | None = None,
+                    standing_start_lap_time: float | None = None) -> EvaluationResult:
     """Run ``settings.trials`` trials of ``policy`` on ``track`` in one batched Simulator.
 
     ``policy``: a :class:`laplab.train.policy.ModelPolicy` (greedy unless ``settings.stochastic``) or
@@ -165,7 +166,8 @@ def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = Ev
     [-1, 1]^2). A policy with a ``bind(simulator)`` method gets the Simulator before the first step
     (scripted drivers that read the car's state). ``metadata`` (sensors, action space) defaults to the
     policy's, else laplab's default; ``vehicle`` to the policy's training car, else DeepRacer's.
-    ``optimal_lap_time`` (s) fills the summary's gap to optimal. Deterministic for a given seed.
+    ``optimal_lap_time`` (s) fills the summary's gap to optimal, ``standing_start_lap_time`` (s) its
+    yardstick for laps from rest. Deterministic for a given seed.
     """
     started = time.perf_counter()
     metadata = metadata or getattr(policy, "metadata", None) or ModelMetadata()
@@ -183,7 +185,7 @@ def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = Ev
     with _policy_randomness(policy, settings.seed, settings.stochastic):
         run = run_trials(sim, observations.observe, act, metadata.action_space, settings)
     return EvaluationResult(settings=settings, track=track, vehicle=vehicle, metadata=metadata, trials=run.trials,
-                            summary=summarize(run.trials, optimal_lap_time), trace=run.trace,
+                            summary=summarize(run.trials, optimal_lap_time, standing_start_lap_time), trace=run.trace,
                             decisions=run.decisions, wall_seconds=time.perf_counter() - started,
                             model=getattr(policy, "name", None), checkpoint=getattr(policy, "checkpoint", None))
 
@@ -219,7 +221,7 @@ def save_evaluation(folder: ModelFolder, result: EvaluationResult) -> tuple[str,
 def evaluate_model(name: str, settings: EvaluationSettings = EvaluationSettings()) -> tuple[EvaluationResult, str]:
     """Evaluate stored model ``name`` at ``settings.checkpoint`` and keep the evaluation in its
     folder; returns the result and the evaluation's stamp."""
-    from laplab.evaluate.optimal import optimal_lap_time
+    from laplab.evaluate.optimal import optimal_lap_time, standing_start_optimal_lap_time
     from laplab.track.registry import load_track
     from laplab.train.policy import load_model_policy
     from laplab.vehicle.params import vehicle_preset
@@ -230,11 +232,13 @@ def evaluate_model(name: str, settings: EvaluationSettings = EvaluationSettings(
     vehicle = vehicle_preset(config.vehicle)
     try:
         optimal = optimal_lap_time(track, vehicle)
+        standing = standing_start_optimal_lap_time(track, vehicle)
     except (ValueError, RuntimeError, ArithmeticError) as exc:  # a race line that cannot be solved
         import warnings
         warnings.warn(f"no optimal lap time for track {track.name!r}: {exc}", stacklevel=2)
-        optimal = None
-    result = evaluate_policy(policy, track, settings, vehicle=vehicle, optimal_lap_time=optimal)
+        optimal = standing = None
+    result = evaluate_policy(policy, track, settings, vehicle=vehicle, optimal_lap_time=optimal,
+                             standing_start_lap_time=standing)
     stamp, result = save_evaluation(policy.folder, result)
     return result, stamp
 

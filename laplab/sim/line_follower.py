@@ -21,7 +21,7 @@ to where the curvature it then needs fits within the grip. Pure pursuit, by cont
 chord of the line and cuts every corner.
 
 :func:`drive_line` starts cars on the line's first point (at rest or at the line's speed there) and
-drives one lap; :func:`standing_start_lap_time` is the lap time the line's speed plan predicts when
+drives one lap; :func:`laplab.track.speed_profile.standing_start_lap_time` is the lap time the line's speed plan predicts when
 the car starts from rest.
 """
 
@@ -163,19 +163,6 @@ class LineFollower:
             needed = np.abs(self._curvature_at(speed_arc) + correction)
             speed = np.minimum(speed, np.sqrt(v.max_lateral_acceleration / np.maximum(needed, 1e-9)))
         return steer, speed
-
-
-def standing_start_lap_time(arc_length: np.ndarray, speeds: np.ndarray, max_acceleration: float) -> float:
-    """Lap time (s) of a closed speed plan when the car starts at rest at point 0 and then keeps to it.
-
-    arc_length (M,) m with the closing point ([-1] = lap length), speeds (M,) m/s (closed plan, so
-    it already meets the braking limit everywhere). Starting from rest the speed is
-    ``min(plan, sqrt(2 a s))``: the plan is consistent with full acceleration from any of its points,
-    so nothing but the launch itself changes; segments take ``2 ds / (v_i + v_j)``.
-    """
-    arc = np.asarray(arc_length, dtype=np.float64)
-    launched = np.minimum(np.asarray(speeds, dtype=np.float64), np.sqrt(2.0 * max_acceleration * arc))
-    return float(np.sum(2.0 * np.diff(arc) / np.maximum(launched[:-1] + launched[1:], 1e-12)))
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from laplab.track import speed_profile as speed_profile_module
 from laplab.track.geometry import Track
 from laplab.track.raceline import RaceLine, RaceLineSettings, compute_raceline_for_track
 from laplab.track.registry import laplab_home, load_track
+from laplab.track.speed_profile import standing_start_lap_time
 from laplab.vehicle.params import DEEPRACER, VehicleParams
 
 CACHE_FORMAT = 1
@@ -123,6 +124,13 @@ def optimal_lap_time(track: Track | str, vehicle: VehicleParams = DEEPRACER) -> 
     """Lap time (s) of the race line of ``track`` with the default margin and settings (cached):
     the yardstick for "gap to optimal"."""
     return raceline_for(track, vehicle).lap_time
+
+
+def standing_start_optimal_lap_time(track: Track | str, vehicle: VehicleParams = DEEPRACER) -> float:
+    """Lap time (s) of the race line driven from rest at its first point: the fastest possible lap
+    that starts at rest, the yardstick for a trial that does (the race line's own lap is flying)."""
+    line = raceline_for(track, vehicle)
+    return standing_start_lap_time(line.arc_length, line.speeds, vehicle.max_acceleration)
 
 
 def clear_memory_cache() -> None:

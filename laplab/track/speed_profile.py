@@ -173,6 +173,19 @@ def limit_arguments(vehicle: VehicleParams, settings: SpeedProfileSettings) -> t
             float(vehicle.max_acceleration), float(vehicle.max_braking))
 
 
+def standing_start_lap_time(arc_length: np.ndarray, speeds: np.ndarray, max_acceleration: float) -> float:
+    """Lap time (s) of a closed speed plan when the car starts at rest at point 0 and then keeps to it.
+
+    arc_length (M,) m with the closing point ([-1] = lap length), speeds (M,) m/s (closed plan, so
+    it already meets the braking limit everywhere). Starting from rest the speed is
+    ``min(plan, sqrt(2 a s))``: the plan is consistent with full acceleration from any of its points,
+    so nothing but the launch itself changes; segments take ``2 ds / (v_i + v_j)``.
+    """
+    arc = np.asarray(arc_length, dtype=np.float64)
+    launched = np.minimum(np.asarray(speeds, dtype=np.float64), np.sqrt(2.0 * max_acceleration * arc))
+    return float(np.sum(2.0 * np.diff(arc) / np.maximum(launched[:-1] + launched[1:], 1e-12)))
+
+
 def compute_speed_profile(points: np.ndarray, vehicle: VehicleParams = DEEPRACER,
                           settings: SpeedProfileSettings = SpeedProfileSettings()) -> SpeedProfile:
     """Fastest speeds along the closed path ``points`` (M, 2) (or (M+1, 2) with the closing row)."""

@@ -158,3 +158,15 @@ def test_leaderboard_fills_a_missing_gap_from_the_cache(evaluations):
     optimal = optimal_lap_time(load_track("classic_2018"))
     assert bravo.gap_to_optimal == pytest.approx(10.5 / optimal)
     assert np.isfinite(bravo.gap_to_optimal)
+
+
+def test_summary_names_the_flying_and_the_standing_start_optimum():
+    from laplab.evaluate.optimal import standing_start_optimal_lap_time
+    from laplab.evaluate.summary import summary_lines
+    track = load_track("classic_2018")
+    flying, standing = optimal_lap_time(track), standing_start_optimal_lap_time(track)
+    # from rest the car spends its first metres accelerating: slower than the flying lap, by well under a second
+    assert flying < standing < flying + 1.0
+    text = "\n".join(summary_lines(summarize(trials([6.0]), flying, standing)))
+    assert f"{flying:.3f} s (race line, flying; {standing:.3f} s from a standing start)" in text
+    assert "unknown" in "\n".join(summary_lines(summarize(trials([6.0]))))

@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from laplab.sim.line_follower import (LineFollower, LineFollowerParams, drive_line, menger_curvature,
-                                      standing_start_lap_time)
+from laplab.sim.line_follower import LineFollower, LineFollowerParams, drive_line, menger_curvature
 from laplab.sim.state import LAP_COMPLETE, STATUS_NAMES
 from laplab.track.geometry import load_route_file
 from laplab.track.raceline import compute_raceline_for_track
 from laplab.track.registry import load_track
+from laplab.track.speed_profile import standing_start_lap_time
 from laplab.vehicle.params import DEEPRACER
 
 REFERENCE_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "reference-tracks"
