@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from laplab.agents.ppo import PPOLearner, Rollout
+from laplab.agents.ppo import PPOLearner, Rollout, keep_freed_memory
 from laplab.agents.sac import SACLearner
 from laplab.env.observations import ObservationBuilder
 from laplab.reward.errors import RewardFunctionError
@@ -76,6 +76,8 @@ def build_learner(config: TrainConfig, observation_space, seed: int):
     # Small vector networks run fastest on one thread (more threads only add synchronisation, and
     # collapse when the cores are shared); camera networks use every core.
     threads = config.num_threads or (1 if metadata.camera is None else None)
+    if metadata.camera is not None:
+        keep_freed_memory()
     learner_class = SACLearner if metadata.training_algorithm == "sac" else PPOLearner
     return learner_class(observation_space, action_space, hp, metadata.neural_network, seed=seed,
                          num_threads=threads, precision=config.precision)
