@@ -9,15 +9,18 @@ are flying). Prints, per mark, the median over seeds of:
   (`/flying`) and to the race line driven from rest (`/standing`, the physical limit of such a lap);
 - `flying lap`: best of the continuous run's laps, s, and its ratio to the flying optimum.
 
-Seeds run in parallel processes with --jobs (STATE training uses one core each).
+Seeds run in parallel processes with --jobs (STATE training uses one core each; camera training
+uses every core, so give camera runs --jobs 1).
 
 Usage:
   python bench/lap_quality.py [--seeds 0 1 2] [--minutes 5 20] [--track classic_2018] [--jobs 2]
+                              [--sensor STATE|FRONT_FACING_CAMERA] [--hyperparameters '{"num_epochs": 10}']
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import tempfile
@@ -34,15 +37,20 @@ def standing_optimum(track_name: str) -> tuple[float, float]:
     return optimal_lap_time(track), standing_start_optimal_lap_time(track)
 
 
-def train_and_evaluate(track: str, seed: int, minutes: list[float]) -> dict:
+def train_and_evaluate(track: str, seed: int, minutes: list[float], sensor: str = "STATE",
+                       hyperparameters: dict | None = None) -> dict:
     os.environ.setdefault("LAPLAB_HOME", tempfile.mkdtemp(prefix="laplab-bench-"))
+    from laplab.env.metadata import ModelMetadata
     from laplab.evaluate.trials import EvaluationSettings, evaluate_model
     from laplab.store.checkpoints import CheckpointStore
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import create_training
 
     name = f"lapq-{seed}-{int(time.time() * 1000) % 10**8}"
-    config = replace(TrainConfig(), track=track, seed=seed, max_time_s=60.0 * max(minutes))
+    config = replace(TrainConfig(), track=track, seed=seed, max_time_s=60.0 * max(minutes),
+                     model_metadata=replace(ModelMetadata(), sensors=(sensor,)).to_dict())
+    if hyperparameters:
+        config = replace(config, hyperparameters={**config.hyper().to_dict(), **hyperparameters})
     trainer = create_training(name, config)
     store = CheckpointStore(trainer.folder)
     marks = sorted(minutes)
@@ -76,12 +84,15 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, nargs="+", default=[5.0, 20.0])
     parser.add_argument("--track", default="classic_2018")
     parser.add_argument("--jobs", type=int, default=1, help="seeds trained at once (one core each)")
+    parser.add_argument("--sensor", default="STATE")
+    parser.add_argument("--hyperparameters", default="{}", help="JSON of hyperparameters to override")
     args = parser.parse_args()
     flying_opt, standing_opt = standing_optimum(args.track)
     print(f"{args.track}: race line {flying_opt:.3f} s flying, {standing_opt:.3f} s from a standing start")
     with ProcessPoolExecutor(args.jobs) as pool:
-        runs = list(pool.map(train_and_evaluate, [args.track] * len(args.seeds), args.seeds,
-                             [args.minutes] * len(args.seeds)))
+        n = len(args.seeds)
+        runs = list(pool.map(train_and_evaluate, [args.track] * n, args.seeds, [args.minutes] * n,
+                             [args.sensor] * n, [json.loads(args.hyperparameters)] * n))
     print(f"{'minutes':>7s} {'seed':>4s} {'env steps':>9s} {'rest lap s':>10s} {'/flying':>7s} {'/standing':>9s} "
           f"{'flying lap s':>12s} {'/flying':>7s}")
     nan = float("nan")
