@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from laplab.env import TimeTrialVectorEnv
-from laplab.env.vector import DEFAULT_REWARD
+from laplab.env.vector import EXAMPLES_DIR
 from laplab.track.registry import load_track
 
 
@@ -91,7 +91,7 @@ def main() -> None:
         rows.append(("(a) Simulator.step kernel, STATE", n, *time_simulator(n, args.steps, args.repeats)))
         rows.append(("(a) VectorEnv.step, STATE, no reward", n, *time_vector_env(n, None, args.steps, args.repeats)))
         rows.append(("(b) VectorEnv.step, STATE, follow_centerline", n,
-                     *time_vector_env(n, DEFAULT_REWARD, args.steps, args.repeats)))
+                     *time_vector_env(n, EXAMPLES_DIR / "follow_centerline.py", args.steps, args.repeats)))
     for name, n, rate, latency in rows:
         ratio = f"{rate / peer:10.0f}x" if peer else "n/a"
         print(f"{name:44s} {n:5d} {rate:14,.0f} {latency:10.1f} {ratio:>12s}")
