@@ -146,7 +146,7 @@ class PPOLearner:
         self.action_spec: ActionSpec = action_spec_from(action_space_spec)
         self.device = torch.device(device)
         self.model = ActorCritic(observation_space, self.action_spec, network_name).to(self.device)
-        self.precision = set_compute_precision(self.model, precision)  # "auto": bfloat16 trunks for cameras where native
+        self.precision = set_compute_precision(self.model, precision)  # "auto": bfloat16 camera trunks where native
         # fused: one kernel for all parameters, 1.6x faster camera-network steps on CPU than the per-tensor loop
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=hyperparameters.lr, eps=ADAM_EPSILON, fused=True)
         self.rng = np.random.default_rng(seed)

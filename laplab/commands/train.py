@@ -9,6 +9,8 @@ from pathlib import Path
 
 from rich.console import Console
 
+from laplab.agents.hyperparameters import PRECISIONS
+
 
 def _add_job_options(parser: argparse.ArgumentParser, defaults: bool) -> None:
     none = None
@@ -28,7 +30,7 @@ def register(subparsers) -> None:
     _add_job_options(train, defaults=True)
     train.add_argument("--domain-randomization", action="store_true",
                        help="randomise camera frames in training (lighting, colours, noise, jitter) for the car")
-    train.add_argument("--precision", choices=("auto", "float32", "bfloat16"), default="auto",
+    train.add_argument("--precision", choices=PRECISIONS, default="auto",
                        help="network arithmetic in training (auto: bfloat16 for camera networks on CPUs "
                             "with native bfloat16, else float32)")
     train.add_argument("--quiet", action="store_true", help="print only the summary")

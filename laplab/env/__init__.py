@@ -12,5 +12,6 @@ if ENV_ID not in gym.registry:
     gym.register(id=ENV_ID, entry_point="laplab.env.time_trial:TimeTrialEnv",
                  vector_entry_point="laplab.env.vector:TimeTrialVectorEnv")
 
-__all__ = ["ActionSpace", "ActionSpaceError", "DEFAULT_REWARD", "ENV_ID", "EXAMPLES_DIR", "MetadataError", "ModelMetadata", "TimeTrialEnv",
-           "TimeTrialVectorEnv", "default_action_space", "load_model_metadata", "metadata_from_dict"]
+__all__ = ["ActionSpace", "ActionSpaceError", "DEFAULT_REWARD", "ENV_ID", "EXAMPLES_DIR", "MetadataError",
+           "ModelMetadata", "TimeTrialEnv", "TimeTrialVectorEnv", "default_action_space", "load_model_metadata",
+           "metadata_from_dict"]

@@ -21,8 +21,8 @@ to where the curvature it then needs fits within the grip. Pure pursuit, by cont
 chord of the line and cuts every corner.
 
 :func:`drive_line` starts cars on the line's first point (at rest or at the line's speed there) and
-drives one lap; :func:`laplab.track.speed_profile.standing_start_lap_time` is the lap time the line's speed plan predicts when
-the car starts from rest.
+drives one lap; :func:`laplab.track.speed_profile.standing_start_lap_time` is the lap time the
+line's speed plan predicts when the car starts from rest.
 """
 
 from __future__ import annotations
