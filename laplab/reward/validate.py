@@ -15,7 +15,8 @@ import numpy as np
 
 from laplab.env.action_space import ActionSpace, default_action_space
 from laplab.reward.errors import RewardFunctionError
-from laplab.reward.loader import RewardFunction, call_with_timeout
+from laplab.reward.loader import RewardFunction
+from laplab.reward.timeout import call_with_timeout
 from laplab.reward.params import ParamsBuilder
 from laplab.sim.simulator import Simulator
 from laplab.sim.state import EpisodeParams

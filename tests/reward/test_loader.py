@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from laplab.reward.errors import RewardFunctionError
-from laplab.reward.loader import LEGACY_PARAMETERS, RewardFunction, call_with_timeout, load_reward_function
+from laplab.reward.loader import LEGACY_PARAMETERS, RewardFunction, load_reward_function
+from laplab.reward.timeout import call_with_timeout
 
 WAYPOINTS = [(0.0, 0.0), (1.0, 0.0), (2.0, 0.0), (3.0, 0.0), (0.0, 0.0)]
 
