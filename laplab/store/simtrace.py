@@ -16,13 +16,14 @@ file. One file per training iteration; a crash loses at most the batch being wri
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from pathlib import Path
 
 import numpy as np
 from numba import njit
+
+from laplab.store.csv_numbers import put_fixed, put_general, put_int
 
 SIMTRACE_COLUMNS = (
     "episode", "steps", "X", "Y", "yaw", "steer", "throttle", "action", "reward", "done",
@@ -58,112 +59,9 @@ for _index, _token in enumerate(_TOKENS):
 _TOKEN_LENGTHS = np.array([len(token) for token in _TOKENS], np.int64)
 _MAX_ROW_BYTES = 1024  # generous bound: 19 fields of at most ~40 bytes
 _CHUNK_ROWS = 8192
-# The kernels write ASCII codes: 10 newline, 32 space, 43 '+', 44 ',', 45 '-', 46 '.', 48 '0',
-# 91 '[', 93 ']', 101 'e'.
 
 
-@njit(cache=True)
-def _put_digits(buffer, position, value):
-    """Decimal digits of a non-negative int64 value; returns the next position."""
-    start = position
-    while True:
-        buffer[position] = 48 + value % 10
-        value //= 10
-        position += 1
-        if value == 0:
-            break
-    low, high = start, position - 1
-    while low < high:
-        buffer[low], buffer[high] = buffer[high], buffer[low]
-        low += 1
-        high -= 1
-    return position
-
-
-@njit(cache=True)
-def _put_int(buffer, position, value):
-    if value < 0:
-        buffer[position] = 45
-        position += 1
-        value = -value
-    return _put_digits(buffer, position, value)
-
-
-@njit(cache=True)
-def _put_rounded(buffer, position, value, decimals):
-    """Finite `value` (|value| * 10**decimals < 9e18) rounded to `decimals`, trailing zeros
-    trimmed with one kept: 30 -> '30.0'."""
-    scale = np.int64(10) ** decimals
-    quantity = np.int64(math.floor(abs(value) * 10.0 ** decimals + 0.5))
-    if value < 0 and quantity != 0:
-        buffer[position] = 45
-        position += 1
-    position = _put_digits(buffer, position, quantity // scale)
-    buffer[position] = 46
-    fraction = quantity % scale
-    for index in range(decimals, 0, -1):
-        buffer[position + index] = 48 + fraction % 10
-        fraction //= 10
-    end = position + 1 + max(decimals, 1)
-    if decimals == 0:
-        buffer[end - 1] = 48
-    while end > position + 2 and buffer[end - 1] == 48:
-        end -= 1
-    return end
-
-
-@njit(cache=True)
-def _put_scientific(buffer, position, value, significant):
-    """Finite non-zero `value` as mantissa 'e' signed two-digit exponent: 1.0e-08."""
-    exponent = int(math.floor(math.log10(abs(value))))
-    mantissa = value / 10.0 ** exponent
-    if abs(mantissa) * 10.0 ** (significant - 1) + 0.5 >= 10.0 ** significant:
-        mantissa /= 10.0
-        exponent += 1
-    position = _put_rounded(buffer, position, mantissa, significant - 1)
-    buffer[position] = 101
-    buffer[position + 1] = 45 if exponent < 0 else 43
-    position += 2
-    if abs(exponent) < 10:
-        buffer[position] = 48
-        position += 1
-    return _put_digits(buffer, position, abs(exponent))
-
-
-@njit(cache=True)
-def _put_special(buffer, position, value):
-    """'nan', 'inf' or '-inf' (pandas and numpy parse these)."""
-    word = "nan" if value != value else ("inf" if value > 0 else "-inf")
-    for index in range(len(word)):
-        buffer[position + index] = ord(word[index])
-    return position + len(word)
-
-
-@njit(cache=True)
-def _put_fixed(buffer, position, value, decimals):
-    """`value` with at most `decimals` decimals (fewer when huge, exponent form beyond 9e18)."""
-    if not math.isfinite(value):
-        return _put_special(buffer, position, value)
-    while decimals > 0 and abs(value) * 10.0 ** decimals >= 9.0e18:
-        decimals -= 1
-    if abs(value) >= 9.0e18:
-        return _put_scientific(buffer, position, value, 15)
-    return _put_rounded(buffer, position, value, decimals)
-
-
-@njit(cache=True)
-def _put_general(buffer, position, value, significant):
-    """`significant` digits; exponent form outside [1e-5, 10**significant)."""
-    if not math.isfinite(value):
-        return _put_special(buffer, position, value)
-    if value == 0.0:
-        return _put_rounded(buffer, position, value, 1)
-    exponent = int(math.floor(math.log10(abs(value))))
-    if -5 <= exponent < significant:
-        return _put_rounded(buffer, position, value, significant - 1 - exponent)
-    return _put_scientific(buffer, position, value, significant)
-
-
+# _render writes ASCII codes: 10 newline, 32 space, 44 ',', 91 '[', 93 ']'.
 @njit(cache=True)
 def _render(kinds, slots, decimals, integers, numbers, token_bytes, token_lengths, buffer):
     """CSV bytes of rows (n,) into `buffer`; integers (n, a) int64, numbers (n, b) float64.
@@ -173,11 +71,11 @@ def _render(kinds, slots, decimals, integers, numbers, token_bytes, token_length
         for column in range(kinds.shape[0]):
             kind, slot = kinds[column], slots[column]
             if kind == _INT:
-                position = _put_int(buffer, position, integers[row, slot])
+                position = put_int(buffer, position, integers[row, slot])
             elif kind == _FIXED:
-                position = _put_fixed(buffer, position, numbers[row, slot], decimals[column])
+                position = put_fixed(buffer, position, numbers[row, slot], decimals[column])
             elif kind == _GENERAL:
-                position = _put_general(buffer, position, numbers[row, slot], decimals[column])
+                position = put_general(buffer, position, numbers[row, slot], decimals[column])
             elif kind == _TOKEN:
                 token = integers[row, slot]
                 length = token_lengths[token]
@@ -185,9 +83,9 @@ def _render(kinds, slots, decimals, integers, numbers, token_bytes, token_length
                 position += length
             else:  # _PAIR: "[steer speed]"
                 buffer[position] = 91
-                position = _put_fixed(buffer, position + 1, numbers[row, slot], decimals[column])
+                position = put_fixed(buffer, position + 1, numbers[row, slot], decimals[column])
                 buffer[position] = 32
-                position = _put_fixed(buffer, position + 1, numbers[row, slot + 1], decimals[column])
+                position = put_fixed(buffer, position + 1, numbers[row, slot + 1], decimals[column])
                 buffer[position] = 93
                 position += 1
             buffer[position] = 44 if column < kinds.shape[0] - 1 else 10
