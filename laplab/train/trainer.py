@@ -122,7 +122,7 @@ class Trainer:
 
     def _poses_hook(self):
         """The collection's per-step hook, or None when nobody listens (then no poses are copied)."""
-        if not any(hasattr(listener, "on_poses") for listener in self._listeners):
+        if all(getattr(listener, "on_poses", None) is None for listener in self._listeners):
             return None
         iteration = self.iteration + 1
         return lambda poses, sim_time: self._emit("on_poses", PosesFrame(iteration, poses, sim_time))
