@@ -210,6 +210,6 @@ def test_default_hyperparameters_follow_the_sensor():
     assert state.hyperparameters is None and state.hyper().num_epochs == 10  # the console's
     assert camera.hyper().num_epochs == 5  # deepracer-for-cloud's, for camera networks
     # laplab.json writes the values out, so a resumed job keeps them
-    assert TrainConfig.from_dict(camera.to_dict()).hyperparameters["num_epochs"] == 5
+    assert TrainConfig.from_dict(camera.to_dict()).hyperparameters.num_epochs == 5
     given = replace(camera, hyperparameters={**camera.hyper().to_dict(), "num_epochs": 8})
     assert given.hyper().num_epochs == 8
