@@ -11,6 +11,9 @@ import argparse
 import importlib
 import sys
 
+# Commands raise laplab.errors.UserError; the name stays importable from here for compatibility.
+from laplab.errors import UserError
+
 COMMAND_MODULES = (
     "laplab.commands.run",
     "laplab.commands.drive",
@@ -26,8 +29,6 @@ COMMAND_MODULES = (
 )
 
 
-class UserError(Exception):
-    """An error caused by the user's input; printed without a traceback."""
 
 
 def build_parser() -> argparse.ArgumentParser:

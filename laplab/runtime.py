@@ -140,6 +140,11 @@ class OnnxPolicy:
             height, width, channels = self.inputs[self.camera]
             self.frame_size, self.stack = (height, width), channels // self.cameras
             self._frames: deque[np.ndarray] = deque(maxlen=self.stack)
+            recorded = self.session.get_modelmeta().custom_metadata_map.get("stack_size")
+            if recorded is not None and (not recorded.isdigit() or int(recorded) * self.cameras != channels):
+                raise RuntimeModelError(f"{onnx_path}: the graph's {self.camera} input has {channels} channels, "
+                                        f"but the model was exported with stack_size {recorded} "
+                                        f"({self.cameras} camera(s) per frame)")
         width = self.session.get_outputs()[0].shape[-1]
         expected = len(self.actions) if self.discrete else 2
         if isinstance(width, int) and width != expected:

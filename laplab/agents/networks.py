@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping, NamedTuple
+from typing import Any, Mapping
 
 import gymnasium as gym
 import numpy as np
@@ -22,6 +22,7 @@ import torch
 from torch import nn
 
 from laplab.agents.hyperparameters import PRECISIONS
+from laplab.agents.learner import Action
 
 CAMERA_SENSORS = ("FRONT_FACING_CAMERA", "STEREO_CAMERAS", "LEFT_CAMERA")
 LIDAR_SENSORS = ("LIDAR", "SECTOR_LIDAR", "DISCRETIZED_SECTOR_LIDAR")
@@ -266,15 +267,10 @@ def observation_to_tensor(observations: Any, device: torch.device | str) -> Any:
     return torch.as_tensor(array, device=device)
 
 
-class PolicyStep(NamedTuple):
-    """Output of ``act`` for B observations: ``action`` to store for training ((B,) int64 or
-    (B, A) float32, unclipped), ``env_action`` to send to the env (continuous: clipped to [-1, 1]),
-    ``log_prob`` (B,) of ``action``, ``value`` (B,) state value."""
-
-    action: Any
-    env_action: Any
-    log_prob: Any
-    value: Any
+# Output of ``act`` for B observations: ``action`` to store for training ((B,) int64 or (B, A) float32,
+# unclipped), ``env_action`` to send to the env (continuous: clipped to [-1, 1]), ``log_prob`` (B,) of
+# ``action``, ``value`` (B,) state value. One type for every learner (laplab.agents.learner.Action).
+PolicyStep = Action
 
 
 class ActorCritic(nn.Module):

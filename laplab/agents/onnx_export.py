@@ -28,6 +28,7 @@ import torch
 from torch import nn
 
 from laplab.agents.networks import CAMERA_SENSORS, ActorCritic, SquashedGaussianActor
+from laplab.env.spec import ModelSpec
 
 ONNX_OPSET = 17
 PROBABILITIES = "probabilities"
@@ -106,12 +107,26 @@ class PolicyGraph(nn.Module):
         return torch.softmax(out, dim=-1) if self.discrete else out.clamp(-1.0, 1.0)
 
 
+def model_to_onnx(network: nn.Module, spec: ModelSpec, metadata_json: str | None = None) -> bytes:
+    """The greedy policy of a model's ``network`` as ONNX bytes: inputs from the model's spec (its
+    observation space, sensor order and ``stack_size``, recorded as the property ``stack_size``)."""
+    return policy_to_onnx(network, spec.observation_space, spec.sensors, metadata_json,
+                          extra_properties={"stack_size": str(spec.stack_size)})
+
+
+def model_parity_error(onnx_bytes: bytes, network: nn.Module, spec: ModelSpec, samples: int = 16,
+                       seed: int = 0) -> float:
+    """Max |ONNX - torch| of a model's graph over random observations of its spec (needs onnxruntime)."""
+    return onnx_parity_error(onnx_bytes, network, spec.observation_space, spec.sensors, samples, seed)
+
+
 def policy_to_onnx(network: nn.Module, observation_space: gym.Space, sensors: Sequence[str],
-                   metadata_json: str | None = None) -> bytes:
+                   metadata_json: str | None = None, extra_properties: dict[str, str] | None = None) -> bytes:
     """Serialise the greedy policy of ``network`` as an ONNX model (bytes).
 
     ``metadata_json`` (the model's model_metadata.json text) is embedded as the ONNX metadata
-    property ``model_metadata`` so the graph alone still says which action each output means.
+    property ``model_metadata`` so the graph alone still says which action each output means;
+    ``extra_properties`` are added as further metadata properties.
     """
     import onnx  # optional dependency: pip install onnx onnxruntime
 
@@ -133,6 +148,7 @@ def policy_to_onnx(network: nn.Module, observation_space: gym.Space, sensors: Se
                   "output": graph.output_name}
     if metadata_json is not None:
         properties["model_metadata"] = metadata_json
+    properties.update(extra_properties or {})
     onnx.helper.set_model_props(model, properties)
     onnx.checker.check_model(model)
     return model.SerializeToString()

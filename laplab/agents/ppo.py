@@ -134,6 +134,8 @@ class PPOLearner:
     (e-greedy draws, minibatch shuffling).
     """
 
+    algorithm = "clipped_ppo"
+
     def __init__(self, observation_space: gym.spaces.Space, action_space_spec: Any,
                  hyperparameters: Hyperparameters = Hyperparameters(),
                  network_name: str = DEFAULT_NETWORK, device: str = "cpu",
@@ -159,10 +161,12 @@ class PPOLearner:
         return self.hyperparameters.epsilon_at(self.env_steps)
 
     @torch.no_grad()
-    def act(self, observations: Any, deterministic: bool = False, with_value: bool = True) -> PolicyStep:
+    def act(self, observations: Any, deterministic: bool = False, with_value: bool | None = None) -> PolicyStep:
         """Actions for a batch of B observations (numpy, leading axis B) -> ``PolicyStep`` of
         numpy arrays. Exploring calls advance the epsilon schedule by B steps. ``with_value=False``
-        skips the value network (the step's values are then NaN)."""
+        skips the value network (the step's values are then NaN); by default greedy calls skip it."""
+        if with_value is None:
+            with_value = not deterministic
         obs = observation_to_tensor(observations, self.device)
         if with_value:
             distribution, value = self.model(obs)
@@ -197,6 +201,21 @@ class PPOLearner:
     def values(self, observations: Any) -> np.ndarray:
         """V(obs) (B,) for a batch of observations, e.g. ``Rollout.last_values``."""
         return self.model.value(observation_to_tensor(observations, self.device)).cpu().numpy()
+
+    @property
+    def policy_network(self) -> ActorCritic:
+        return self.model
+
+    def learn(self, batch: Any) -> dict[str, float]:
+        """One training iteration on complete episodes (a :class:`laplab.agents.learner.Experience`)."""
+        return self.update(Rollout(batch.observations, batch.actions, batch.log_probs, batch.values, batch.rewards,
+                                   batch.terminated, batch.truncated, batch.bootstrap_values, None, batch.valid))
+
+    def load_weights(self, state: Mapping[str, Any]) -> None:
+        """Start from the network weights of ``state`` (a clone: fresh optimizer and schedules)."""
+        if state.get("algorithm") != self.algorithm:
+            raise ValueError(f"cannot start a {type(self).__name__} from a {state.get('algorithm')} checkpoint")
+        self.model.load_state_dict(state["model"])
 
     def update(self, rollout: Rollout) -> dict[str, float]:
         """One DeepRacer training iteration on ``rollout``. Returns means over all minibatches:

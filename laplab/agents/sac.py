@@ -21,8 +21,8 @@ import torch.nn.functional as F
 
 from laplab.agents.hyperparameters import Hyperparameters
 from laplab.agents.losses import sac_actor_loss, sac_critic_target
-from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, SquashedGaussianActor, TwinQ,
-                                    action_spec_from, observation_to_tensor, set_compute_precision)
+from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, PolicyStep, SquashedGaussianActor,
+                                    TwinQ, action_spec_from, observation_to_tensor, set_compute_precision)
 from laplab.agents.ppo import limit_torch_threads
 
 TARGET_SMOOTHING = 0.005  # tau of the Polyak target update
@@ -94,6 +94,8 @@ class SACLearner:
     ``seed`` seeds torch's global RNG and this learner's numpy RNG (replay sampling).
     """
 
+    algorithm = "sac"
+
     def __init__(self, observation_space: gym.spaces.Space, action_space_spec: Any,
                  hyperparameters: Hyperparameters = Hyperparameters(),
                  network_name: str = DEFAULT_NETWORK, device: str = "cpu",
@@ -121,10 +123,47 @@ class SACLearner:
         self.gradient_steps = 0
 
     @torch.no_grad()
-    def act(self, observations: Any, deterministic: bool = False) -> np.ndarray:
-        """(B, A) actions in [-1, 1] for B observations (tanh of the mean when deterministic)."""
+    def act(self, observations: Any, deterministic: bool = False) -> PolicyStep:
+        """Actions for B observations: ``action`` = ``env_action`` (B, A) in [-1, 1] (tanh of the mean
+        when deterministic); ``log_prob`` and ``value`` are zeros (SAC learns off-policy, from a buffer)."""
         actions, _ = self.actor(observation_to_tensor(observations, self.device), deterministic)
-        return actions.cpu().numpy()
+        actions = actions.cpu().numpy()
+        zeros = np.zeros(actions.shape[0], np.float32)
+        return PolicyStep(actions, actions, zeros, zeros)
+
+    def values(self, observations: Any) -> np.ndarray:
+        """Zeros (B,): SAC has no state-value network; an episode cut by the step cap ends its target."""
+        first = next(iter(observations.values())) if isinstance(observations, Mapping) else observations
+        return np.zeros(len(first), np.float32)
+
+    @property
+    def policy_network(self) -> SquashedGaussianActor:
+        return self.actor
+
+    def learn(self, batch: Any) -> dict[str, float]:
+        """Add complete episodes (a :class:`laplab.agents.learner.Experience`) to the replay buffer and
+        make the iteration's gradient steps."""
+        obs, valid = batch.observations, batch.valid
+        t_idx, e_idx = np.nonzero(valid)
+        following = np.minimum(t_idx + 1, valid.shape[0] - 1)
+        done = batch.terminated[t_idx, e_idx] | batch.truncated[t_idx, e_idx]
+        # The observation after a car's last step is never recorded (the car stops); its target is not
+        # bootstrapped (terminated), so any placeholder works: use the same observation. A truncated
+        # episode's final observation is not recorded either: SAC treats the cut as an end (time_up
+        # only fires at the 100,000-step cap, so the bias this causes is negligible).
+        next_t = np.where(done, t_idx, following)
+
+        def pick(t: np.ndarray) -> Any:
+            return {k: v[t, e_idx] for k, v in obs.items()} if isinstance(obs, Mapping) else obs[t, e_idx]
+        self.observe(pick(t_idx), batch.actions[t_idx, e_idx], batch.rewards[t_idx, e_idx], pick(next_t), done)
+        return self.update(self.gradient_steps_for(int(valid.sum())))
+
+    def load_weights(self, state: Mapping[str, Any]) -> None:
+        """Start from the network weights of ``state`` (a clone: fresh optimizers)."""
+        if state.get("algorithm") != self.algorithm:
+            raise ValueError(f"cannot start a {type(self).__name__} from a {state.get('algorithm')} checkpoint")
+        for name in ("actor", "critic", "target_critic"):
+            getattr(self, name).load_state_dict(state[name])
 
     def observe(self, observations: Any, actions: np.ndarray, rewards: np.ndarray,
                 next_observations: Any, terminated: np.ndarray) -> None:

@@ -20,7 +20,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from laplab.cli import UserError
+    from laplab.errors import UserError
     from laplab.env.vector import DEFAULT_REWARD, resolve_reward_function
     from laplab.reward.params import ParamsBuilder, rewards_for
     from laplab.sim.pure_pursuit import PurePursuit, PurePursuitParams

@@ -55,7 +55,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from laplab.cli import UserError
+    from laplab.errors import UserError
     from laplab.evaluate.trials import EvaluationError, EvaluationSettings, evaluate_model
 
     console = Console(highlight=False, soft_wrap=True)

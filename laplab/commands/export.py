@@ -7,7 +7,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from laplab.cli import UserError
+from laplab.errors import UserError
 
 PARITY_TOLERANCE = 1e-4  # max |ONNX - torch| accepted by the export's self-check
 
@@ -46,23 +46,22 @@ def export_model_onnx(name: str, checkpoint: str = "best", out_dir: str | Path |
     """Write ``model.onnx`` and ``model_metadata.json`` of model ``name``'s policy at ``checkpoint``
     into ``out_dir`` (default ``./<name>-onnx``), and check the graph against torch."""
     try:
-        from laplab.agents.onnx_export import onnx_parity_error, policy_to_onnx
+        from laplab.agents.onnx_export import model_parity_error, model_to_onnx
         from laplab.train.policy import load_model_policy
     except ImportError as exc:
         raise UserError(f"ONNX export needs torch and onnx ({exc}); install them with "
                         "`pip install torch onnx onnxruntime`.") from None
     from laplab.store.atomic import atomic_write_bytes, atomic_write_text
     try:
-        import onnx  # noqa: F401  (policy_to_onnx imports it; fail early with a clear message)
+        import onnx  # noqa: F401  (model_to_onnx imports it; fail early with a clear message)
     except ImportError:
         raise UserError("ONNX export needs the onnx package: `pip install onnx onnxruntime`.") from None
 
     policy = load_model_policy(name, checkpoint)
     metadata_text = json.dumps(policy.folder.read_model_metadata(), indent=2) + "\n"
-    sensors = policy.metadata.sensors
-    graph = policy_to_onnx(policy.network, policy.observation_space, sensors, metadata_text)
+    graph = model_to_onnx(policy.network, policy.spec, metadata_text)
     try:
-        error = onnx_parity_error(graph, policy.network, policy.observation_space, sensors)
+        error = model_parity_error(graph, policy.network, policy.spec)
     except ImportError:
         error = None
     if error is not None and error > PARITY_TOLERANCE:

@@ -22,7 +22,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from laplab.cli import UserError
+    from laplab.errors import UserError
     from laplab.evaluate.leaderboard import leaderboard
     from laplab.evaluate.summary import format_gap, format_seconds
     from laplab.evaluate.trials import EvaluationError

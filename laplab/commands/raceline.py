@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from laplab.cli import UserError
+from laplab.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

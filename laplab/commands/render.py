@@ -24,7 +24,7 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
-    from laplab.cli import UserError
+    from laplab.errors import UserError
     from laplab.env.metadata import CAMERA_SENSORS, LIDAR_SENSORS
     from laplab.sensors.camera import HUMAN_CAMERA, camera_for_sensor, render_camera, render_cameras
     from laplab.sensors.lidar import DEFAULT_LIDAR, LidarWalls, scan

@@ -26,7 +26,7 @@ def register(subparsers) -> None:
 
 def _resolve_folder(model: str):
     """The model folder named ``model`` (a model name first, else a folder path)."""
-    from laplab.cli import UserError
+    from laplab.errors import UserError
     from laplab.store.layout import MODEL_NAME_PATTERN, ModelFolder, list_models, model_folder, models_root
     is_name = MODEL_NAME_PATTERN.fullmatch(model) is not None
     if is_name and model_folder(model).exists():
@@ -45,7 +45,7 @@ def run_report(args: argparse.Namespace) -> int:
 
     from laplab.analysis.loaders import ReportDataError
     from laplab.analysis.report import ReportSettings, build_report
-    from laplab.cli import UserError
+    from laplab.errors import UserError
     for option, value in (("--iterations", args.iterations), ("--evaluations", args.evaluations)):
         if value < 1:
             raise UserError(f"{option} must be at least 1, got {value}.")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from laplab.cli import UserError
+from laplab.errors import UserError
 from laplab.track import registry
 from laplab.track.geometry import TrackError, load_route_file, remove_repeated_points, validate_route
 

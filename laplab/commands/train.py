@@ -91,7 +91,7 @@ def run_trainer(trainer, console: Console, quiet: bool) -> int:
 def run_train(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from laplab.cli import UserError
+    from laplab.errors import UserError
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import create_training, resume_training
 

@@ -68,6 +68,16 @@ class ActionSpace:
         steer_deg, speed = self.to_physical(actions)
         return np.radians(steer_deg), speed
 
+    def sweep_actions(self) -> np.ndarray:
+        """(K, 2) (steering deg, speed m/s) covering the space, for the reward validation sweep: every
+        discrete action, or a 3 x 3 grid of a continuous space's ranges (ends and middles)."""
+        if self.is_discrete:
+            actions = np.arange(len(self.actions))
+        else:
+            grid = np.array([-1.0, 0.0, 1.0])
+            actions = np.stack(np.meshgrid(grid, grid), axis=-1).reshape(-1, 2)
+        return np.stack(self.to_physical(actions), axis=1)
+
     @property
     def max_speed(self) -> float:
         return float(max(s for _, s in self.actions)) if self.is_discrete else float(self.speed[1])

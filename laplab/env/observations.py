@@ -12,7 +12,8 @@ from typing import Callable
 import gymnasium as gym
 import numpy as np
 
-from laplab.env.metadata import CAMERA_SENSORS, LIDAR_SENSORS, STATE_SENSOR, ModelMetadata
+from laplab.env.metadata import CAMERA_SENSORS, LIDAR_SENSORS, STATE_SENSOR
+from laplab.env.spec import ModelSpec
 from laplab.sim.simulator import Simulator
 
 Reader = Callable[[np.ndarray], np.ndarray]  # car indices (K,) -> (K, *shape)
@@ -21,9 +22,10 @@ Reader = Callable[[np.ndarray], np.ndarray]  # car indices (K,) -> (K, *shape)
 class ObservationBuilder:
     """Builds the observation of the cars of a :class:`Simulator` for the sensors of a model.
 
-    ``seed`` seeds the sensor noise (lidar's Gaussian noise); ``sensor_noise=False`` gives exact
-    readings (evaluation of a deterministic policy, tests). ``stack_size`` (DeepRacer's hyperparameter)
-    stacks that many consecutive camera frames as channels, newest last.
+    ``spec`` (a :class:`~laplab.env.spec.ModelSpec`) gives the sensors and the ``stack_size`` (that many
+    consecutive camera frames stacked as channels, newest last); the spaces are the spec's own
+    (:func:`laplab.env.spec.observation_space`). ``seed`` seeds the sensor noise (lidar's Gaussian
+    noise); ``sensor_noise=False`` gives exact readings (evaluation of a deterministic policy, tests).
 
     Camera observations are ``(C, 120, 160)`` uint8, channels first: C = cameras x stack_size
     (stereo: left, right per frame). ``randomization`` (a
@@ -32,42 +34,44 @@ class ObservationBuilder:
     noise, blur and camera-pose jitter, drawn per car and frame from the seeded generator.
     """
 
-    def __init__(self, sim: Simulator, metadata: ModelMetadata, seed: int | None = None, sensor_noise: bool = True,
-                 stack_size: int = 1, randomization=None):
-        if int(stack_size) < 1:
-            raise ValueError(f"stack_size must be >= 1, got {stack_size!r}")
+    def __init__(self, sim: Simulator, spec: ModelSpec, seed: int | None = None, sensor_noise: bool = True,
+                 randomization=None):
+        if not isinstance(spec, ModelSpec):
+            raise TypeError(f"ObservationBuilder takes a ModelSpec (laplab.env.spec.model_spec(metadata, "
+                            f"stack_size)), got {type(spec).__name__}")
         self.sim = sim
-        self.stack_size = int(stack_size)
+        self.spec = spec
+        self.stack_size = spec.stack_size
         self.randomization = randomization if randomization is not None and randomization.enabled else None
         self._camera_rng = np.random.default_rng(seed)
-        self.sensors = metadata.sensors
+        self.sensors = spec.sensors
         self.rng = np.random.default_rng(seed) if sensor_noise else None
+        self.single_space: gym.Space = spec.observation_space
+        spaces = self.single_space.spaces if isinstance(self.single_space, gym.spaces.Dict) else None
         self._parts: dict[str, tuple[gym.spaces.Box, Reader]] = {}
         for sensor in self.sensors:
+            box = spaces[sensor] if spaces is not None else self.single_space
             if sensor == STATE_SENSOR:
-                box = gym.spaces.Box(-np.inf, np.inf, shape=(sim.obs.shape[1],), dtype=np.float32)
+                if sim.obs.shape[1] != box.shape[0]:
+                    raise ValueError(f"the simulator's STATE vector has {sim.obs.shape[1]} values, the model's "
+                                     f"observation space {box.shape[0]}")
                 self._parts[sensor] = (box, lambda cars: sim.obs[cars])
             elif sensor in LIDAR_SENSORS:
-                self._parts[sensor] = self._lidar_part(sensor, metadata.lidar_config)
+                self._parts[sensor] = (box, self._lidar_reader(sensor, spec.lidar_config))
             elif sensor in CAMERA_SENSORS:
-                self._parts[sensor] = self._camera_part(sensor)
-        boxes = {name: box for name, (box, _) in self._parts.items()}
-        self.single_space: gym.Space = next(iter(boxes.values())) if len(boxes) == 1 else gym.spaces.Dict(boxes)
+                self._parts[sensor] = (box, self._camera_reader(sensor, box))
 
-    def _lidar_part(self, sensor: str, lidar_config: dict | None) -> tuple[gym.spaces.Box, Reader]:
-        from laplab.sensors.lidar import DEFAULT_LIDAR, LidarWalls, lidar_observation, lidar_observation_shape, scan
+    def _lidar_reader(self, sensor: str, lidar_config: dict | None) -> Reader:
+        from laplab.sensors.lidar import DEFAULT_LIDAR, LidarWalls, lidar_observation, scan
         walls = LidarWalls.from_track(self.sim.track)
-        shape = lidar_observation_shape(sensor, lidar_config, DEFAULT_LIDAR.num_beams)
-        low, high = (0.0, np.inf) if sensor == "LIDAR" else (0.0, 1.0)
-        box = gym.spaces.Box(low, high, shape=shape, dtype=np.float32)
         poses = self.sim.poses
 
         def read(cars: np.ndarray) -> np.ndarray:
             ranges = scan(walls, poses()[cars], DEFAULT_LIDAR, rng=self.rng, parallel=False)
             return lidar_observation(sensor, ranges, lidar_config).astype(np.float32, copy=False)
-        return box, read
+        return read
 
-    def _camera_part(self, sensor: str) -> tuple[gym.spaces.Box, Reader]:
+    def _camera_reader(self, sensor: str, box: gym.spaces.Box) -> Reader:
         from laplab.sensors.camera import camera_for_sensor, render_cameras
         from laplab.sensors.randomize import build_randomized_texture, render_randomized, sample_randomization
         from laplab.sensors.texture import TextureParams, build_track_texture
@@ -83,9 +87,8 @@ class ObservationBuilder:
             frames = render_randomized(texture, poses_now, cameras, draw, rng)
             return frames if frames.ndim == 4 else frames[..., None]
 
-        height, width, per_frame = cameras[0].height, cameras[0].width, len(cameras)
-        channels = per_frame * self.stack_size
-        box = gym.spaces.Box(0, 255, shape=(channels, height, width), dtype=np.uint8)
+        per_frame = len(cameras)
+        channels, height, width = box.shape
         st, poses = self.sim.state, self.sim.poses
         stack = np.zeros((self.sim.num_cars, channels, height, width), dtype=np.uint8)
         seen = np.full((self.sim.num_cars, 2), -1, dtype=np.int64)  # (episode, steps) of the newest frame
@@ -103,7 +106,7 @@ class ObservationBuilder:
                 stack[update, -per_frame:] = frames
                 seen[update] = now[fresh]
             return stack[cars]
-        return box, read
+        return read
 
     def observe(self, cars: np.ndarray | slice = slice(None)):
         """Observations of the selected cars: an array (or a dict of arrays) with a leading car axis.

@@ -8,8 +8,9 @@ import gymnasium as gym
 import numpy as np
 
 from laplab.env.metadata import ModelMetadata
+from laplab.env.render import RENDER_FPS, RENDER_MODES
 from laplab.env.vector import DEFAULT_REWARD, RewardSpec, _reset_episodes, _setup_episodes
-from laplab.sim.state import IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES, TIME_UP, EpisodeParams
+from laplab.sim.state import IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES, EpisodeParams
 from laplab.track.geometry import Track
 from laplab.track.registry import DEFAULT_TRACK
 from laplab.vehicle.params import DEEPRACER, VehicleParams
@@ -37,15 +38,20 @@ class TimeTrialEnv(gym.Env):
 
     Info: ``params`` (the dict the reward function saw), ``episode_status``, ``progress`` (%),
     ``steps``, and ``lap_time`` (s) when the lap completes.
+
+    Rendering: ``render_mode="rgb_array"`` makes :meth:`render` return an (H, W, 3) uint8 picture,
+    ``render_view="topdown"`` (default: the track from above) or ``"camera"`` (the front camera in
+    colour, 480x640); ``metadata["render_fps"]`` 15, one frame per step.
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": RENDER_MODES, "render_fps": RENDER_FPS}
 
     def __init__(self, track: Track | str = DEFAULT_TRACK, reward_function: RewardSpec = DEFAULT_REWARD,
                  model_metadata: ModelMetadata | dict | str | None = None, vehicle: VehicleParams = DEEPRACER,
                  episode: EpisodeParams = EpisodeParams(), stack_size: int = 1, seed: int | None = None,
-                 randomization=None):
-        _setup_episodes(self, 1, track, reward_function, model_metadata, vehicle, episode, stack_size, seed, randomization)
+                 randomization=None, render_mode: str | None = None, render_view: str = "topdown"):
+        _setup_episodes(self, 1, track, reward_function, model_metadata, vehicle, episode, stack_size, seed,
+                        randomization, render_mode, render_view)
         self.observation_space = self._observations.single_space
         self.action_space = self.action_spec.gym_space()
 
@@ -57,18 +63,17 @@ class TimeTrialEnv(gym.Env):
     def step(self, action):
         if self.sim.state.status[0] != IN_PROGRESS:
             raise RuntimeError("step() called on a finished episode; call reset() first")
-        steer, speed = self.action_spec.to_commands(np.asarray(action)[None])
-        self.sim.step(steer, speed)
+        result = self._stepper.step(np.asarray(action)[None], keep_params=True)
         info = self._info()
-        params = self._params.build()[0]
-        info["params"] = params
-        reward = float(self.reward_fn(params)) if self.reward_fn is not None else 0.0
-        status = int(self.sim.state.status[0])
-        truncated = status == TIME_UP
-        terminated = status != IN_PROGRESS and not truncated
-        if status == LAP_COMPLETE:
+        info["params"] = result.params[0]
+        if self.sim.state.status[0] == LAP_COMPLETE:
             info["lap_time"] = float(self.sim.state.lap_time[0])
-        return self._observe(), reward, terminated, truncated, info
+        return (self._observe(), float(result.rewards[0]), bool(result.terminated[0]), bool(result.truncated[0]),
+                info)
+
+    def render(self):
+        """The current picture (H, W, 3) uint8 for ``render_mode="rgb_array"``; None without a render mode."""
+        return None if self._renderer is None else self._renderer.frame()
 
     def _observe(self):
         obs = self._observations.observe(slice(0, 1))

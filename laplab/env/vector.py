@@ -12,9 +12,11 @@ from gymnasium.vector import AutoresetMode
 
 from laplab.env.metadata import ModelMetadata, load_model_metadata, metadata_from_dict
 from laplab.env.observations import ObservationBuilder
-from laplab.reward.params import ParamsBuilder, rewards_for
+from laplab.env.render import RENDER_FPS, RENDER_MODES, FrameRenderer, check_render_options
+from laplab.env.spec import model_spec
+from laplab.env.step import EpisodeStepper
 from laplab.sim.simulator import Simulator
-from laplab.sim.state import IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES, TIME_UP, EpisodeParams
+from laplab.sim.state import LAP_COMPLETE, STATUS_NAMES, EpisodeParams
 from laplab.track.geometry import Track
 from laplab.track.registry import DEFAULT_TRACK, load_track
 from laplab.vehicle.params import DEEPRACER, VehicleParams
@@ -45,22 +47,26 @@ def resolve_metadata(metadata: ModelMetadata | dict | str | os.PathLike | None) 
 
 
 def _setup_episodes(env, num_cars: int, track, reward_function, model_metadata, vehicle, episode, stack_size, seed,
-                    randomization=None) -> None:
-    """What both envs hold: metadata, track, simulator, action spec, reward function, params and observations."""
+                    randomization=None, render_mode=None, render_view="topdown", render_car=0) -> None:
+    """What both envs hold: the model spec, track, simulator, action spec, reward function, stepper,
+    observations and renderer."""
+    check_render_options(render_mode, render_view)
     env.model_metadata = resolve_metadata(model_metadata)
+    env.model_spec = model_spec(env.model_metadata, stack_size)
     env.track = track if isinstance(track, Track) else load_track(track)
     env.sim = Simulator(env.track, num_cars, vehicle, episode)
     env.action_spec = env.model_metadata.action_space
     env.reward_fn = resolve_reward_function(reward_function, env.action_spec.max_speed)
-    env._params = ParamsBuilder(env.sim)
-    env._observations = ObservationBuilder(env.sim, env.model_metadata, seed=seed, stack_size=stack_size,
-                                           randomization=randomization)
+    env._stepper = EpisodeStepper(env.sim, env.action_spec, env.reward_fn)
+    env._observations = ObservationBuilder(env.sim, env.model_spec, seed=seed, randomization=randomization)
+    env.render_mode, env.render_view = render_mode, render_view
+    env._renderer = FrameRenderer(env.sim, render_view, render_car) if render_mode is not None else None
 
 
 def _reset_episodes(sim: Simulator, seed: int | None, options: dict[str, Any] | None) -> None:
     """Reset every car; a seed restarts the round-robin start schedule."""
     if seed is not None:
-        sim._episodes_done[:] = 0
+        sim.restart_schedule()
     options = options or {}
     sim.reset(ndist=options.get("start_ndist"), direction=options.get("direction"))
 
@@ -91,16 +97,21 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
     ``info["_final_obs"]``). ``info`` always holds per-car arrays ``episode_status`` (str),
     ``progress`` (%), ``steps``, ``lap_time`` (s, NaN unless the lap completed this step) and, when a
     reward function runs, ``params`` (the list of params dicts it saw, None for idle cars).
+
+    Rendering: ``render_mode="rgb_array"`` makes :meth:`render` return one (H, W, 3) uint8 picture:
+    ``render_view="topdown"`` (default) every car on the track from above, ``"camera"`` the front
+    camera of car ``render_car`` in colour (:mod:`laplab.env.render`); ``metadata["render_fps"]`` 15.
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": RENDER_MODES, "render_fps": RENDER_FPS}
 
     def __init__(self, num_envs: int = 16, track: Track | str = DEFAULT_TRACK, reward_function: RewardSpec = DEFAULT_REWARD,
                  model_metadata: ModelMetadata | dict | str | None = None, vehicle: VehicleParams = DEEPRACER,
                  episode: EpisodeParams = EpisodeParams(), keep_params: bool = True, stack_size: int = 1,
-                 seed: int | None = None, randomization=None):
+                 seed: int | None = None, randomization=None, render_mode: str | None = None,
+                 render_view: str = "topdown", render_car: int = 0):
         _setup_episodes(self, num_envs, track, reward_function, model_metadata, vehicle, episode, stack_size, seed,
-                        randomization)
+                        randomization, render_mode, render_view, render_car)
         self.num_envs = int(num_envs)
         self.keep_params = keep_params
         self.single_observation_space = self._observations.single_space
@@ -115,34 +126,25 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
         return self._observations.observe(), self._base_info()
 
     def step(self, actions):
-        steer, speed = self.action_spec.to_commands(actions)
-        sim = self.sim
-        stepped = sim.step(steer, speed)
-        cars = np.flatnonzero(stepped)
-        rewards = np.zeros(self.num_envs)
-        params_list = None
-        if self.reward_fn is not None and cars.size:
-            rewards[cars], params = rewards_for(self._params, self.reward_fn, cars, keep=self.keep_params)
-            if self.keep_params:
-                params_list = [None] * self.num_envs
-                for car, p in zip(cars.tolist(), params):
-                    params_list[car] = p
-        status = sim.state.status
-        done = stepped & (status != IN_PROGRESS)
-        truncated = done & (status == TIME_UP)
-        terminated = done & ~truncated
-        info = self._base_info(lap_mask=done & (status == LAP_COMPLETE))
-        if params_list is not None:
-            info["params"] = params_list
+        keep = self.keep_params and self.reward_fn is not None
+        result = self._stepper.step(actions, keep_params=keep)
+        done = result.done
+        info = self._base_info(lap_mask=done & (self.sim.state.status == LAP_COMPLETE))
+        if result.params is not None:
+            info["params"] = result.params
         obs = self._observations.observe()
         if done.any():
             info["final_obs"] = obs
             info["_final_obs"] = done.copy()
             info["final_info"] = {k: v for k, v in info.items() if k not in ("final_obs", "_final_obs")}
             info["_final_info"] = done.copy()
-            sim.reset(done)
+            self.sim.reset(done)
             obs = self._observations.observe()
-        return obs, rewards, terminated, truncated, info
+        return obs, result.rewards, result.terminated, result.truncated, info
+
+    def render(self):
+        """The current picture (H, W, 3) uint8 for ``render_mode="rgb_array"``; None without a render mode."""
+        return None if self._renderer is None else self._renderer.frame()
 
     def _base_info(self, lap_mask: np.ndarray | None = None) -> dict:
         st = self.sim.state

@@ -24,7 +24,7 @@ from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from laplab.env.action_space import ActionSpace
+from laplab.env.step import EpisodeStepper, simtrace_rows, trace_actions
 from laplab.evaluate.summary import INCIDENTS, TrialResult
 from laplab.sim.simulator import Simulator
 from laplab.vehicle.dynamics import pose_for_reference
@@ -84,10 +84,7 @@ def put_back(sim: Simulator, cars: np.ndarray, travel: np.ndarray) -> None:
                                                  sim.vehicle.reference_offset))
         if (st.status[stranded] != IN_PROGRESS).any():
             raise RuntimeError(f"cannot put cars {stranded.tolist()} back on track {track.name!r}")
-    st.travel[cars] = travel
-    st.progress[cars] = np.clip(100.0 * travel / track.length, 0.0, 100.0)
-    st.reverse_count[cars] = 0
-    st.immobile_count[cars] = 0
+    sim.set_travel(cars, travel)
 
 
 def _rows(sim: Simulator, cars: np.ndarray, trials: np.ndarray, clock: np.ndarray, steps: np.ndarray,
@@ -95,42 +92,26 @@ def _rows(sim: Simulator, cars: np.ndarray, trials: np.ndarray, clock: np.ndarra
           crashes: np.ndarray, wall: float) -> dict[str, np.ndarray]:
     """Simtrace columns of K rows, one per car of ``cars`` (its current state); ``status`` holds row
     status indices into ``_ROW_STATUS``; ``clock`` is trial time, shifted onto the evaluation clock later."""
-    st = sim.state
     k = cars.size
-    seg = st.segment[cars]
-    closest = np.mod(np.where(st.seg_t[cars] <= 0.5, seg, seg + 1), sim.track.num_waypoints - 1)
-    return {
-        "episode": trials.astype(np.int64), "steps": steps.astype(np.int64), "X": st.ref_x[cars].copy(),
-        "Y": st.ref_y[cars].copy(), "yaw": np.degrees(st.yaw[cars]), "steer": np.degrees(st.cmd_steer[cars]),
-        "throttle": st.cmd_speed[cars].copy(), "action": action, "reward": np.zeros(k), "done": done,
-        "all_wheels_on_track": st.wheels_on[cars] == 4, "progress": st.progress[cars].copy(),
-        "closest_waypoint": closest.astype(np.int64), "track_len": np.full(k, sim.track.length),
-        "tstamp": clock.astype(np.float64), "episode_status": status,
-        "pause_duration": penalty.astype(np.float64), "obstacle_crash_counter": crashes.astype(np.int64),
-        "wall_clock": np.full(k, wall),
-    }
+    return simtrace_rows(sim, cars, action, np.zeros(k), episode=trials, steps=steps, tstamp=clock, done=done,
+                         episode_status=status, pause_duration=penalty.astype(np.float64),
+                         obstacle_crash_counter=crashes.astype(np.int64), wall_clock=np.full(k, wall))
 
 
-def _trace_actions(action_space: ActionSpace, env_actions: np.ndarray) -> np.ndarray:
-    if action_space.is_discrete:
-        return np.asarray(env_actions).reshape(-1).astype(np.int64)
-    steer_deg, speed = action_space.to_physical(env_actions)
-    return np.stack([steer_deg, speed], axis=1)
-
-
-def run_trials(sim: Simulator, observe: Callable[[np.ndarray], Any], act: Callable[[Any], np.ndarray],
-               action_space: ActionSpace, settings: Any) -> TrialRun:
-    """Drive ``settings.trials`` trials on ``sim`` (one car per trial, or one car for all of them when
-    ``settings.continuous``) and return them.
+def run_trials(stepper: EpisodeStepper, observe: Callable[[np.ndarray], Any], act: Callable[[Any], np.ndarray],
+               settings: Any) -> TrialRun:
+    """Drive ``settings.trials`` trials on ``stepper.sim`` (one car per trial, or one car for all of them
+    when ``settings.continuous``) and return them.
 
     ``observe(cars)`` gives the observations of the cars (K,) as a batch; ``act(obs)`` the env actions
     for that batch (indices, or points of [-1, 1]^2). ``settings`` supplies trials, continuous,
     off_track_penalty, crash_penalty, resets (None: unlimited) and max_trial_time (s).
     """
+    sim, action_space = stepper.sim, stepper.action_space
     n_trials, slots, dt = int(settings.trials), sim.num_cars, sim.dt
     if slots != (1 if settings.continuous else n_trials):
         raise ValueError(f"run_trials: {slots} cars for {n_trials} trials (continuous={settings.continuous})")
-    st, length = sim.state, sim.track.length
+    st = sim.state
     reset_budget = -1 if settings.resets is None else int(settings.resets)  # -1: unlimited
     trial_of = np.arange(slots)
     clock, trial_steps = np.zeros(slots), np.zeros(slots, np.int64)
@@ -146,10 +127,8 @@ def run_trials(sim: Simulator, observe: Callable[[np.ndarray], Any], act: Callab
         if active.size == 0:
             break
         env_actions = np.asarray(act(observe(active)))
-        steer, speed = np.zeros(slots), np.zeros(slots)
-        steer[active], speed[active] = action_space.to_commands(env_actions)
         prev_travel = st.travel.copy()
-        sim.step(steer, speed)
+        stepper.step(env_actions, active)
         decisions += active.size
         clock[active] += dt
         trial_steps[active] += 1
@@ -163,7 +142,7 @@ def run_trials(sim: Simulator, observe: Callable[[np.ndarray], Any], act: Callab
         reset = incident & (resets_left[active] != 0)
         ends = lap | time_up | (incident & ~reset)
         row_status = np.where(time_up, TIME_UP, code)
-        trace_action = _trace_actions(action_space, env_actions)
+        trace_action = trace_actions(action_space, env_actions)
         crash_so_far = counts[trial, INCIDENTS.index("crash")]
         wall = time.time()
         parts.append(_rows(sim, active, trial, clock[active], trial_steps[active], row_status, ends, trace_action,
@@ -184,9 +163,7 @@ def run_trials(sim: Simulator, observe: Callable[[np.ndarray], Any], act: Callab
             if settings.continuous and index + 1 < n_trials:
                 if status == LAP_COMPLETE:  # flying start: the rest of this step belongs to the next lap
                     clock[car] -= finished[index]["lap_time"]
-                    st.travel[car] -= length
-                    st.progress[car] = np.clip(100.0 * st.travel[car] / length, 0.0, 100.0)
-                    st.status[car] = IN_PROGRESS
+                    sim.continue_lap(np.array([car]))
                 else:
                     sim.reset(np.arange(slots) == car, ndist=np.zeros(1))
                     clock[car] = 0.0
@@ -194,7 +171,7 @@ def run_trials(sim: Simulator, observe: Callable[[np.ndarray], Any], act: Callab
                 trial_steps[car] = 0
                 resets_left[car] = reset_budget
             elif status == TIME_UP:
-                st.status[car] = TIME_UP
+                sim.end_episodes(np.array([car]), TIME_UP)
     return _assemble(finished, counts, resets, penalties, parts, decisions)
 
 

@@ -22,6 +22,8 @@ import numpy as np
 
 from laplab.env.metadata import ModelMetadata
 from laplab.env.observations import ObservationBuilder
+from laplab.env.spec import ModelSpec, model_spec
+from laplab.env.step import EpisodeStepper
 from laplab.evaluate.runner import run_trials
 from laplab.evaluate.summary import EvaluationSummary, TrialResult, summarize
 from laplab.sim.simulator import Simulator
@@ -156,7 +158,7 @@ def _actor(policy: Any, stochastic: bool) -> Callable[[Any], np.ndarray]:
 
 
 def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = EvaluationSettings(), *,
-                    metadata: ModelMetadata | None = None, vehicle: VehicleParams | None = None,
+                    spec: ModelSpec | None = None, vehicle: VehicleParams | None = None,
                     optimal_lap_time: float | None = None,
                     standing_start_lap_time: float | None = None) -> EvaluationResult:
     """Run ``settings.trials`` trials of ``policy`` on ``track`` in one batched Simulator.
@@ -164,13 +166,15 @@ def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = Ev
     ``policy``: a :class:`laplab.train.policy.ModelPolicy` (greedy unless ``settings.stochastic``) or
     a callable mapping a batch of observations (K, ...) to K env actions (indices, or points of
     [-1, 1]^2). A policy with a ``bind(simulator)`` method gets the Simulator before the first step
-    (scripted drivers that read the car's state). ``metadata`` (sensors, action space) defaults to the
-    policy's, else laplab's default; ``vehicle`` to the policy's training car, else DeepRacer's.
+    (scripted drivers that read the car's state). ``spec`` (sensors, frame stack, action space) defaults
+    to the policy's, else laplab's default model; ``vehicle`` to the policy's training car, else DeepRacer's.
     ``optimal_lap_time`` (s) fills the summary's gap to optimal, ``standing_start_lap_time`` (s) its
     yardstick for laps from rest. Deterministic for a given seed.
     """
     started = time.perf_counter()
-    metadata = metadata or getattr(policy, "metadata", None) or ModelMetadata()
+    spec = spec or getattr(policy, "spec", None) or model_spec()
+    if not isinstance(spec, ModelSpec):
+        raise TypeError(f"evaluate_policy: spec must be a ModelSpec (laplab.env.spec.model_spec), got {type(spec).__name__}")
     if vehicle is None:
         config = getattr(policy, "config", None)
         from laplab.vehicle.params import vehicle_preset
@@ -178,13 +182,13 @@ def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = Ev
     slots = 1 if settings.continuous else settings.trials
     episode = EpisodeParams(round_robin_advance=0.0, spread_starts=False, max_steps=2**62)
     sim = Simulator(track, slots, vehicle, episode)
-    observations = ObservationBuilder(sim, metadata, seed=settings.seed)
+    observations = ObservationBuilder(sim, spec, seed=settings.seed)
     act = _actor(policy, settings.stochastic)
     if hasattr(policy, "bind"):
         policy.bind(sim)
     with _policy_randomness(policy, settings.seed, settings.stochastic):
-        run = run_trials(sim, observations.observe, act, metadata.action_space, settings)
-    return EvaluationResult(settings=settings, track=track, vehicle=vehicle, metadata=metadata, trials=run.trials,
+        run = run_trials(EpisodeStepper(sim, spec.action_space), observations.observe, act, settings)
+    return EvaluationResult(settings=settings, track=track, vehicle=vehicle, metadata=spec.metadata, trials=run.trials,
                             summary=summarize(run.trials, optimal_lap_time, standing_start_lap_time), trace=run.trace,
                             decisions=run.decisions, wall_seconds=time.perf_counter() - started,
                             model=getattr(policy, "name", None), checkpoint=getattr(policy, "checkpoint", None))

@@ -2,7 +2,8 @@
 
 The sweep covers the start, middle and end of the lap, both sides of the centre line, on and off the
 track, the car straight and at an angle, both driving directions, and every action of the action
-space (continuous spaces: a 3 x 3 grid of steering and speed). Every call runs under a timeout, so a
+space (the caller gives them as (steering deg, speed m/s) pairs, e.g. ``ActionSpace.sweep_actions()``;
+continuous spaces: a 3 x 3 grid of steering and speed). Every call runs under a timeout, so a
 function that never returns fails validation instead of hanging it.
 """
 
@@ -13,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from laplab.env.action_space import ActionSpace, default_action_space
 from laplab.reward.errors import RewardFunctionError
 from laplab.reward.loader import RewardFunction
 from laplab.reward.timeout import call_with_timeout
@@ -26,6 +26,8 @@ from laplab.vehicle.dynamics import pose_for_reference
 LAP_FRACTIONS = (0.005, 0.1, 0.5, 0.75, 0.995)
 LATERAL_FRACTIONS = (-1.4, -0.9, -0.5, -0.15, 0.0, 0.15, 0.5, 0.9, 1.4)  # of the half width; |x| > 1: off track
 HEADING_OFFSETS_DEG = (-25.0, 0.0, 25.0)
+# laplab's default action space (steering -30..30 deg by 10, speeds 1.33, 2.67, 4 m/s), as sweep actions
+DEFAULT_SWEEP_ACTIONS = tuple((float(steer), speed) for steer in range(-30, 31, 10) for speed in (1.33, 2.67, 4.0))
 
 
 @dataclass(frozen=True)
@@ -43,15 +45,13 @@ class ValidationReport:
         return self.error is None
 
 
-def sweep_params(track: Track, action_space: ActionSpace | None = None) -> list[dict]:
-    """Params dicts of the validation sweep on ``track`` (both directions, every action)."""
-    action_space = action_space or default_action_space()
-    if action_space.is_discrete:
-        actions = np.arange(len(action_space.actions))
-    else:
-        grid = np.array([-1.0, 0.0, 1.0])
-        actions = np.stack(np.meshgrid(grid, grid), axis=-1).reshape(-1, 2)
-    steer_deg, speed = action_space.to_physical(actions)
+def sweep_params(track: Track, actions: np.ndarray | None = None) -> list[dict]:
+    """Params dicts of the validation sweep on ``track`` (both directions, every action).
+
+    ``actions``: (K, 2) of (steering deg, speed m/s), e.g. ``ActionSpace.sweep_actions()``; default:
+    laplab's default action space."""
+    actions = np.asarray(DEFAULT_SWEEP_ACTIONS if actions is None else actions, dtype=np.float64).reshape(-1, 2)
+    steer_deg, speed = actions[:, 0], actions[:, 1]
     combos = [(f, lat, hd, d) for d in (0, 1) for f in LAP_FRACTIONS for lat in LATERAL_FRACTIONS
               for hd in HEADING_OFFSETS_DEG]
     n_states = len(combos)
@@ -72,20 +72,21 @@ def sweep_params(track: Track, action_space: ActionSpace | None = None) -> list[
         poses[row:row + len(steer_deg)] = pose
         row += len(steer_deg)
     cars = np.arange(sim.num_cars)
-    sim.state.start_arc[:] = 0.0  # progress counts from waypoint 0 of each direction
     cmd_speed = np.tile(speed, n_states)
-    sim.place(cars, poses, speed=cmd_speed, steer=np.tile(np.radians(steer_deg), n_states))
+    # progress counts from waypoint 0 of each direction
+    sim.place(cars, poses, speed=cmd_speed, steer=np.tile(np.radians(steer_deg), n_states), start_arc=0.0)
     # steps: as if the car had driven there at its commanded speed from the start
-    sim.state.steps[:] = np.maximum(1, np.round(sim.state.travel / np.maximum(cmd_speed, 0.1) * sim.vehicle.decision_hz))
+    sim.set_steps(cars, np.maximum(1, np.round(sim.state.travel / np.maximum(cmd_speed, 0.1) * sim.vehicle.decision_hz)))
     return ParamsBuilder(sim).build()
 
 
-def validate_reward_function(reward_fn: RewardFunction, track: Track, action_space: ActionSpace | None = None,
+def validate_reward_function(reward_fn: RewardFunction, track: Track, actions: np.ndarray | None = None,
                              timeout_s: float = 2.0) -> ValidationReport:
-    """Call ``reward_fn`` on every state of the sweep; stop at the first failure."""
+    """Call ``reward_fn`` on every state of the sweep (``actions`` as in :func:`sweep_params`); stop at
+    the first failure."""
     values = []
     error = None
-    for params in sweep_params(track, action_space):
+    for params in sweep_params(track, actions):
         try:
             values.append(call_with_timeout(reward_fn, params, timeout_s))
         except RewardFunctionError as exc:

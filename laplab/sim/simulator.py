@@ -64,6 +64,12 @@ class Simulator:
             direction ^= (self._episodes_done[cars] % 2).astype(np.int64)
         return ndist, direction
 
+    def restart_schedule(self, episodes_done: int = 0) -> None:
+        """Set every car's count of finished episodes, which places the next round-robin starts
+        (0: the schedule starts over, as ``reset(seed=...)`` of the envs does; a resumed training job
+        continues from the episodes it has run)."""
+        self._episodes_done[:] = int(episodes_done)
+
     def reset(self, mask: np.ndarray | None = None, ndist: np.ndarray | None = None,
               direction: np.ndarray | None = None) -> None:
         """Start new episodes for the cars in ``mask`` (all when None).
@@ -122,12 +128,13 @@ class Simulator:
         st.status[cars] = IN_PROGRESS
 
     def place(self, cars: np.ndarray, poses: np.ndarray, *, speed=0.0, steer=0.0, cmd_speed=None,
-              cmd_steer=None, steps=None) -> None:
+              cmd_steer=None, steps=None, start_arc=None) -> None:
         """Put cars at given poses (K, 3) within their current episodes and recompute what follows.
 
         For hand-built states (tests, reward validation): sets pose and speeds, then the reference
         point's projection, progress since the episode's start (0..100, forward travel), wheels on
-        track, and ``off_track`` status when no wheel is on the track.
+        track, and ``off_track`` status when no wheel is on the track. ``start_arc`` (m) moves where
+        the cars' episodes started (progress counts from there).
         """
         from laplab.sim.state import OFF_TRACK
         from laplab.track.projection import points_on_track
@@ -142,6 +149,8 @@ class Simulator:
         st.cmd_steer[cars] = steer if cmd_steer is None else cmd_steer
         if steps is not None:
             st.steps[cars] = steps
+        if start_arc is not None:
+            st.start_arc[cars] = start_arc
         wheels = wheel_centers(poses, self.vehicle)
         for d in (0, 1):
             sel = st.direction[cars] == d
@@ -156,6 +165,34 @@ class Simulator:
             st.wheels_on[sub] = on.sum(axis=1)
         st.status[cars] = np.where(st.wheels_on[cars] == 0, OFF_TRACK, IN_PROGRESS)
         self._observe(cars)
+
+    def set_steps(self, cars: np.ndarray, steps: np.ndarray) -> None:
+        """Set the step counters of ``cars`` (hand-built states: as if they had driven there)."""
+        self.state.steps[np.asarray(cars, dtype=np.int64)] = steps
+
+    def set_travel(self, cars: np.ndarray, travel: np.ndarray) -> None:
+        """Set the distance ``cars`` have travelled since their start (m, (K,)) and their progress from
+        it, and clear the reversed / immobilized counters (a car put back after an incident)."""
+        cars = np.asarray(cars, dtype=np.int64).reshape(-1)
+        st, length = self.state, self.track.length
+        st.travel[cars] = travel
+        st.progress[cars] = np.clip(100.0 * st.travel[cars] / length, 0.0, 100.0)
+        st.reverse_count[cars] = 0
+        st.immobile_count[cars] = 0
+
+    def continue_lap(self, cars: np.ndarray) -> None:
+        """Cars that just completed a lap drive on into the next one (a flying start): one lap is taken
+        off their travel, progress follows, and their episodes are in progress again."""
+        cars = np.asarray(cars, dtype=np.int64).reshape(-1)
+        st, length = self.state, self.track.length
+        st.travel[cars] -= length
+        st.progress[cars] = np.clip(100.0 * st.travel[cars] / length, 0.0, 100.0)
+        st.status[cars] = IN_PROGRESS
+
+    def end_episodes(self, cars: np.ndarray, status: int) -> None:
+        """End the episodes of ``cars`` with ``status`` (a code of :mod:`laplab.sim.state`), e.g.
+        ``time_up`` when a caller's clock runs out."""
+        self.state.status[np.asarray(cars, dtype=np.int64)] = status
 
     def step(self, cmd_steer: np.ndarray, cmd_speed: np.ndarray) -> np.ndarray:
         """Advance every in-progress car by one decision (1/15 s).

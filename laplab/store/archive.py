@@ -247,21 +247,16 @@ def validate_model_folder(folder: ModelFolder, checkpoint: str, source: str) -> 
 def _check_checkpoint_loads(path: Path, config, source: str) -> None:
     import torch
 
-    from laplab.env.observations import ObservationBuilder
-    from laplab.sim.simulator import Simulator
     from laplab.track.geometry import TrackError
     from laplab.track.registry import load_track
     from laplab.train.trainer import build_learner
-    from laplab.vehicle.params import vehicle_preset
 
     try:
-        track = load_track(config.track)
+        load_track(config.track)
     except TrackError as exc:
         raise ArchiveError(f"{source}: the model's track {config.track!r} (laplab.json 'track') is not available "
                            f"here, so its checkpoint cannot be checked: {exc}") from None
-    sim = Simulator(track, 1, vehicle_preset(config.vehicle))
-    space = ObservationBuilder(sim, config.metadata(), stack_size=config.hyper().stack_size).single_space
-    learner = build_learner(config, space, config.seed)
+    learner = build_learner(config, config.seed)  # the model's spec alone fixes its networks
     try:
         # weights_only: an archive may come from anyone, and a full unpickle can run arbitrary code.
         learner.load_state_dict(torch.load(path, map_location="cpu", weights_only=True)["learner"])

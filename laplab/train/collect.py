@@ -13,11 +13,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from laplab.env.action_space import ActionSpace
 from laplab.env.observations import ObservationBuilder
-from laplab.reward.params import ParamsBuilder, rewards_for
-from laplab.sim.simulator import Simulator
-from laplab.sim.state import IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES, TIME_UP
+from laplab.env.step import EpisodeStepper
+from laplab.sim.state import IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES
 
 
 @dataclass
@@ -67,6 +65,9 @@ class CollectionAborted(Exception):
 
 
 PolicyFn = Callable[[Any], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+# Called after every step with the cars' poses (N, 3) (x m, y m, yaw rad) and the sim time (s) since
+# the collection started: a live view's feed. It should be cheap; the arrays are the caller's to keep.
+PosesHook = Callable[[np.ndarray, float], None]
 
 
 def _stack(frames: list) -> Any:
@@ -75,20 +76,21 @@ def _stack(frames: list) -> Any:
     return np.stack(frames)
 
 
-def collect_episodes(sim: Simulator, observations: ObservationBuilder, params: ParamsBuilder,
-                     reward_fn: Callable[[dict], float] | None, action_space: ActionSpace, policy: PolicyFn,
+def collect_episodes(stepper: EpisodeStepper, observations: ObservationBuilder, policy: PolicyFn,
                      value_fn: Callable[[Any], np.ndarray] | None = None, keep_observations: bool = True,
-                     ndist: np.ndarray | None = None,
-                     should_abort: Callable[[], bool] | None = None) -> EpisodeBatch:
-    """Run one episode on every car of ``sim`` with ``policy`` and return them.
+                     ndist: np.ndarray | None = None, should_abort: Callable[[], bool] | None = None,
+                     on_poses: PosesHook | None = None) -> EpisodeBatch:
+    """Run one episode on every car of ``stepper.sim`` with ``policy`` and return them.
 
     ``policy(obs) -> (action, env_action, log_prob, value)`` for a batch (E, ...) of observations;
-    ``env_action`` is what the env receives (indices, or [-1, 1]^2 points). ``reward_fn`` may raise
-    :class:`~laplab.reward.errors.RewardFunctionError`, which propagates. ``ndist`` overrides the
-    round-robin starts (evaluation uses fixed starts). ``should_abort`` is polled every step; when it
-    returns True, :class:`CollectionAborted` is raised.
+    ``env_action`` is what the env receives (indices, or [-1, 1]^2 points). The stepper's reward
+    function may raise :class:`~laplab.reward.errors.RewardFunctionError`, which propagates. ``value_fn``
+    gives V(final obs) of episodes cut by the step cap. ``ndist`` overrides the round-robin starts
+    (evaluation uses fixed starts). ``should_abort`` is polled every step; when it returns True,
+    :class:`CollectionAborted` is raised. ``on_poses(poses, sim_time)`` is called after every step.
     """
     started = time.perf_counter()
+    sim = stepper.sim
     num = sim.num_cars
     sim.reset(ndist=ndist)
     st = sim.state
@@ -96,37 +98,32 @@ def collect_episodes(sim: Simulator, observations: ObservationBuilder, params: P
     bootstrap = []
     trace_parts: list[dict[str, np.ndarray]] = []
     total = np.zeros(num)
-    track_len = sim.track.length
+    step_index = 0
     while (st.status == IN_PROGRESS).any():
         if should_abort is not None and should_abort():
             raise CollectionAborted
         obs = observations.observe()  # new arrays each step: safe to keep in the rollout
         action, env_action, log_prob, value = policy(obs)
-        steer, speed = action_space.to_commands(env_action)
-        stepped = sim.step(steer, speed)
-        cars = np.flatnonzero(stepped)
-        reward = np.zeros(num)
-        if reward_fn is not None and cars.size:
-            reward[cars] = rewards_for(params, reward_fn, cars)[0]
-        total += reward
-        status = st.status
-        done = stepped & (status != IN_PROGRESS)
-        cut = done & (status == TIME_UP)
+        result = stepper.step(env_action, trace=True)
+        total += result.rewards
+        cut = result.truncated
         boot = np.zeros(num, dtype=np.float32)
         if cut.any() and value_fn is not None:
-            final = observations.observe(np.flatnonzero(cut))
-            boot[cut] = value_fn(final)
+            boot[cut] = value_fn(observations.observe(np.flatnonzero(cut)))
         if keep_observations:
             frames.append(obs)
         actions.append(action)
         log_probs.append(log_prob)
         values.append(value)
-        rewards.append(reward)
-        terminated.append(done & ~cut)
+        rewards.append(result.rewards)
+        terminated.append(result.terminated)
         truncated.append(cut)
-        valid.append(stepped)
+        valid.append(result.stepped)
         bootstrap.append(boot)
-        trace_parts.append(_trace_rows(sim, cars, reward, action_space, env_action, track_len))
+        trace_parts.append(result.trace)
+        step_index += 1
+        if on_poses is not None:
+            on_poses(sim.poses(), step_index * sim.dt)
     trace = {k: np.concatenate([p[k] for p in trace_parts]) for k in trace_parts[0]}
     lap_time = np.where(st.status == LAP_COMPLETE, st.lap_time, np.nan)
     return EpisodeBatch(
@@ -136,26 +133,3 @@ def collect_episodes(sim: Simulator, observations: ObservationBuilder, params: P
         bootstrap_values=np.stack(bootstrap), total_reward=total, progress=st.progress.copy(),
         status=st.status.copy(), steps=st.steps.copy(), lap_time=lap_time, duration=st.steps * sim.dt,
         trace=trace, wall_seconds=time.perf_counter() - started)
-
-
-def _trace_rows(sim: Simulator, cars: np.ndarray, reward: np.ndarray, action_space: ActionSpace,
-                env_action: np.ndarray, track_len: float) -> dict[str, np.ndarray]:
-    """Simtrace columns for the cars stepped this step (episode = car index within the batch)."""
-    st = sim.state
-    seg = st.segment[cars]
-    closest = np.where(st.seg_t[cars] <= 0.5, seg, seg + 1)
-    if action_space.is_discrete:
-        action_col = np.asarray(env_action)[cars].astype(np.int64)
-    else:
-        steer_deg, speed = action_space.to_physical(np.asarray(env_action)[cars])
-        action_col = np.stack([steer_deg, speed], axis=1)
-    status = st.status[cars]
-    return {
-        "episode": cars.astype(np.int64), "steps": st.steps[cars], "X": st.ref_x[cars],
-        "Y": st.ref_y[cars], "yaw": np.degrees(st.yaw[cars]), "steer": np.degrees(st.cmd_steer[cars]),
-        "throttle": st.cmd_speed[cars], "action": action_col, "reward": reward[cars],
-        "done": status != IN_PROGRESS, "all_wheels_on_track": st.wheels_on[cars] == 4,
-        "progress": st.progress[cars], "closest_waypoint": closest.astype(np.int64),
-        "track_len": np.full(cars.size, track_len), "tstamp": st.steps[cars] * sim.dt,
-        "episode_status": np.array(STATUS_NAMES, dtype=object)[status].astype(str),
-    }

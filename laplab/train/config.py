@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 
 from laplab.agents.hyperparameters import PRECISIONS, Hyperparameters, from_dict as hyperparameters_from_dict
 from laplab.env.metadata import ModelMetadata, metadata_from_dict
+from laplab.env.spec import ModelSpec, model_spec
 from laplab.sim.state import EpisodeParams
 from laplab.track.registry import DEFAULT_TRACK
 
@@ -25,8 +26,10 @@ class TrainConfig:
     - ``track``: name or path; ``reverse``: drive it the other way; ``alternate_direction``: switch
       direction every episode.
     - ``reward_path``: the reward file (None: laplab's default, the ``lap_pace`` example).
-    - ``model_metadata`` / ``hyperparameters``: DeepRacer's JSON forms (validated); hyperparameters
-      None: laplab's defaults for this model (:func:`default_hyperparameters`).
+    - ``model_metadata`` (:class:`ModelMetadata`) / ``hyperparameters`` (:class:`Hyperparameters`), typed
+      and frozen; hyperparameters None: laplab's defaults for this model (:func:`default_hyperparameters`).
+      DeepRacer's JSON forms (dicts) are accepted and validated into them; they are written out only
+      by :meth:`to_dict` (``laplab.json``). :attr:`spec` is the model's :class:`ModelSpec`.
     - ``max_time_s``: stop after this much wall time; ``max_episodes``: after this many training
       episodes (default: ``term_cond_max_episodes``); the average score stop uses
       ``term_cond_avg_score`` against the mean total reward of the last iteration's episodes.
@@ -43,8 +46,8 @@ class TrainConfig:
 
     track: str = DEFAULT_TRACK
     reward_path: str | None = None
-    model_metadata: dict = field(default_factory=lambda: ModelMetadata().to_dict())
-    hyperparameters: dict | None = None
+    model_metadata: ModelMetadata = field(default_factory=ModelMetadata)
+    hyperparameters: Hyperparameters | None = None
     max_time_s: float = 20 * 60.0
     max_episodes: int | None = None
     eval_episodes: int = 3
@@ -66,16 +69,29 @@ class TrainConfig:
             raise ConfigError(f"eval episodes must be within 1..20, got {self.eval_episodes!r}")
         if self.precision not in PRECISIONS:
             raise ConfigError(f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
-        self.metadata()  # validates
-        self.hyper()
+        if isinstance(self.model_metadata, dict):  # a model_metadata.json object: validated here
+            object.__setattr__(self, "model_metadata", metadata_from_dict(self.model_metadata, "model_metadata"))
+        elif not isinstance(self.model_metadata, ModelMetadata):
+            raise ConfigError(f"model_metadata must be a ModelMetadata, got {type(self.model_metadata).__name__}")
+        if isinstance(self.hyperparameters, dict):  # a hyperparameters.json object: validated here
+            object.__setattr__(self, "hyperparameters", hyperparameters_from_dict(self.hyperparameters,
+                                                                                 "hyperparameters"))
+        elif self.hyperparameters is not None and not isinstance(self.hyperparameters, Hyperparameters):
+            raise ConfigError(f"hyperparameters must be Hyperparameters, got {type(self.hyperparameters).__name__}")
 
     def metadata(self) -> ModelMetadata:
-        return metadata_from_dict(self.model_metadata, "model_metadata")
+        return self.model_metadata
 
     def hyper(self) -> Hyperparameters:
+        """The hyperparameters, laplab's defaults for this model when none were given."""
         if self.hyperparameters is None:
-            return default_hyperparameters(self.metadata())
-        return hyperparameters_from_dict(self.hyperparameters, "hyperparameters")
+            return default_hyperparameters(self.model_metadata)
+        return self.hyperparameters
+
+    @property
+    def spec(self) -> ModelSpec:
+        """The model's spec: its metadata with the hyperparameters' ``stack_size``."""
+        return model_spec(self.model_metadata, self.hyper().stack_size)
 
     @property
     def episode_limit(self) -> int:
@@ -87,7 +103,8 @@ class TrainConfig:
     def to_dict(self) -> dict:
         """The config with every value written out (laplab.json: a resumed job keeps its
         hyperparameters even if laplab's defaults change)."""
-        return {**asdict(self), "hyperparameters": self.hyper().to_dict()}
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        return {**values, "model_metadata": self.model_metadata.to_dict(), "hyperparameters": self.hyper().to_dict()}
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "laplab.json") -> "TrainConfig":
@@ -95,6 +112,11 @@ class TrainConfig:
         unknown = sorted(set(data) - names)
         if unknown:
             raise ConfigError(f"{source}: unknown key {unknown[0]!r}")
+        data = dict(data)
+        if "model_metadata" in data:
+            data["model_metadata"] = metadata_from_dict(data["model_metadata"], f"{source}: model_metadata")
+        if data.get("hyperparameters") is not None:
+            data["hyperparameters"] = hyperparameters_from_dict(data["hyperparameters"], f"{source}: hyperparameters")
         return cls(**data)
 
 

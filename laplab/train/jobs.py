@@ -10,22 +10,29 @@ from laplab.env.vector import DEFAULT_REWARD
 from laplab.reward.loader import RewardFunction, load_reward_function
 from laplab.reward.validate import validate_reward_function
 from laplab.store.checkpoints import CheckpointStore
-from laplab.store.layout import model_folder, validate_model_name
+from laplab.store.layout import ModelFolder, model_folder, validate_model_name
+from laplab.track.geometry import Track
+from laplab.track.registry import load_track
 from laplab.train.config import TrainConfig
 from laplab.train.errors import JobError
+from laplab.train.recorder import ModelFolderRecorder
 from laplab.train.trainer import Trainer, load_checkpoint, load_weights_only
-from laplab.track.registry import load_track
 
 
 def reward_file(config: TrainConfig) -> Path:
     return Path(config.reward_path) if config.reward_path else DEFAULT_REWARD
 
 
-def load_and_validate_reward(config: TrainConfig, path: Path | None = None) -> RewardFunction:
-    """Load the job's reward function and run the validation sweep; raises RewardFunctionError."""
-    metadata = config.metadata()
-    reward_fn = load_reward_function(path or reward_file(config), max_speed=metadata.action_space.max_speed)
-    report = validate_reward_function(reward_fn, load_track(config.track), metadata.action_space)
+def job_track(config: TrainConfig) -> Track:
+    """The job's track, loaded once (the trainer, validation and evaluation laps all take it)."""
+    return load_track(config.track)
+
+
+def load_and_validate_reward(config: TrainConfig, track: Track, path: Path | None = None) -> RewardFunction:
+    """Load the job's reward function and run the validation sweep on ``track``; raises RewardFunctionError."""
+    action_space = config.model_metadata.action_space
+    reward_fn = load_reward_function(path or reward_file(config), max_speed=action_space.max_speed)
+    report = validate_reward_function(reward_fn, track, action_space.sweep_actions())
     if not report.passed:
         raise report.error
     return reward_fn
@@ -42,17 +49,24 @@ def create_training(name: str, config: TrainConfig, init_weights: dict | None = 
         raise JobError(f"a model named {name!r} already exists at {folder.root}; models are immutable: "
                        f"pick another name, `laplab clone {name} NEW` to continue from it, or "
                        f"`laplab train --resume {name}` if its training was interrupted.")
-    load_track(config.track)
-    reward_fn = load_and_validate_reward(config)
+    track = job_track(config)
+    reward_fn = load_and_validate_reward(config, track)
     folder.create()
-    folder.write_model_metadata(config.metadata().to_dict())
+    folder.write_model_metadata(config.model_metadata.to_dict())
     folder.write_hyperparameters(config.hyper().to_dict())
     folder.write_reward_function(reward_file(config).read_text())
     folder.write_laplab_config(config.to_dict())
-    trainer = Trainer(folder, config, reward_fn)
+    trainer = _attach(Trainer(config, reward_fn, track), folder)
     if init_weights is not None:
         load_weights_only(trainer.learner, init_weights)
     trainer.save_initial_checkpoint()
+    return trainer
+
+
+def _attach(trainer: Trainer, folder: ModelFolder) -> Trainer:
+    """Subscribe the model folder's recorder (it writes what the trainer reports)."""
+    trainer.folder = folder
+    trainer.subscribe(ModelFolderRecorder(folder, trainer.iteration, trainer.episodes))
     return trainer
 
 
@@ -69,11 +83,12 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
         config = replace(config, max_time_s=max_time_s)
     if max_episodes is not None:
         config = replace(config, max_episodes=max_episodes)
-    reward_fn = load_and_validate_reward(config, folder.reward_function)
+    track = job_track(config)
+    reward_fn = load_and_validate_reward(config, track, folder.reward_function)
     state = load_checkpoint(CheckpointStore(folder).resolve("last"))
     if folder.error_file.exists():
         folder.error_file.unlink()
-    return Trainer(folder, config, reward_fn, resume_from=state)
+    return _attach(Trainer(config, reward_fn, track, resume_from=state), folder)
 
 
 def clone_config(source: str, overrides: dict) -> tuple[TrainConfig, dict]:
@@ -90,7 +105,7 @@ def clone_config(source: str, overrides: dict) -> tuple[TrainConfig, dict]:
         overrides = {**overrides, "reward_path": str(folder.reward_function)}
     new_meta = overrides.get("model_metadata")
     if new_meta is not None:
-        old, new = base.metadata(), replace(base, model_metadata=new_meta).metadata()
+        old, new = base.model_metadata, replace(base, model_metadata=new_meta).model_metadata
         for what, a, b in (("action space", old.action_space, new.action_space), ("sensors", old.sensors, new.sensors),
                            ("neural network", old.neural_network, new.neural_network),
                            ("training algorithm", old.training_algorithm, new.training_algorithm)):

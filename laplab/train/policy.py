@@ -2,21 +2,19 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
+from laplab.agents.learner import Learner
 from laplab.env.metadata import ModelMetadata
-from laplab.env.observations import ObservationBuilder
-from laplab.sim.simulator import Simulator
+from laplab.env.spec import ModelSpec
 from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import ModelFolder, model_folder
 from laplab.train.config import TrainConfig
 from laplab.train.trainer import build_learner, load_checkpoint
-from laplab.track.registry import load_track
-from laplab.vehicle.params import vehicle_preset
 
 
 @dataclass
@@ -25,26 +23,32 @@ class ModelPolicy:
 
     ``act(obs, deterministic)`` maps a batch of observations (leading axis B) to env actions: (B,)
     indices for a discrete action space, (B, 2) points of [-1, 1]^2 for a continuous one (scale them
-    with ``metadata.action_space.to_physical``).
+    with ``metadata.action_space.to_physical``). ``spec`` is the model's :class:`ModelSpec` (sensors,
+    frame stack, network, action space): evaluation and export build everything from it.
     """
 
     name: str
     folder: ModelFolder
     config: TrainConfig
-    metadata: ModelMetadata
+    spec: ModelSpec
     checkpoint: str
-    learner: Any
-    observation_space: gym.Space
+    learner: Learner
+
+    @property
+    def metadata(self) -> ModelMetadata:
+        return self.spec.metadata
+
+    @property
+    def observation_space(self) -> gym.Space:
+        return self.spec.observation_space
 
     def act(self, observations: Any, deterministic: bool = True) -> np.ndarray:
-        if hasattr(self.learner, "model"):  # PPO
-            return self.learner.act(observations, deterministic, with_value=False).env_action
-        return self.learner.act(observations, deterministic)  # SAC
+        return self.learner.act(observations, deterministic).env_action
 
     @property
     def network(self):
         """The torch module mapping observations to action probabilities / means (PPO: the actor-critic)."""
-        return self.learner.model if hasattr(self.learner, "model") else self.learner.actor
+        return self.learner.policy_network
 
 
 def load_model_policy(name: str, checkpoint: str = "best", seed: int = 0) -> ModelPolicy:
@@ -55,10 +59,7 @@ def load_model_policy(name: str, checkpoint: str = "best", seed: int = 0) -> Mod
     config = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
     path = CheckpointStore(folder).resolve(checkpoint)
     state = load_checkpoint(path)
-    metadata = config.metadata()
-    sim = Simulator(load_track(config.track), 1, vehicle_preset(config.vehicle))
-    space = ObservationBuilder(sim, metadata, stack_size=config.hyper().stack_size).single_space
     # Driving, evaluation and export run in float32 whatever the training precision was.
-    learner = build_learner(replace(config, precision="float32"), space, seed)
+    learner = build_learner(config, seed, precision="float32")
     learner.load_state_dict(state["learner"])
-    return ModelPolicy(name, folder, config, metadata, path.name, learner, space)
+    return ModelPolicy(name, folder, config, config.spec, path.name, learner)

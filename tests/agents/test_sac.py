@@ -17,13 +17,13 @@ def test_one_d_bandit_moves_to_the_optimum():
     hp = Hyperparameters(batch_size=64, lr=1e-3, sac_alpha=0.05, num_epochs=10)
     learner = SACLearner(STATE, ONE_D, hp, "MLP", seed=1, num_threads=1, buffer_capacity=5000)
     obs = np.zeros((64, 1), np.float32)
-    start_error = abs(learner.act(obs[:1], deterministic=True)[0, 0] - best)
+    start_error = abs(learner.act(obs[:1], deterministic=True).env_action[0, 0] - best)
     for _ in range(40):
-        actions = learner.act(obs)
+        actions = learner.act(obs).action
         assert actions.shape == (64, 1) and np.abs(actions).max() < 1.0
         learner.observe(obs, actions, -(actions[:, 0] - best) ** 2, obs, np.ones(64))
         stats = learner.update(learner.gradient_steps_for(64))
-    final = learner.act(obs[:1], deterministic=True)[0, 0]
+    final = learner.act(obs[:1], deterministic=True).env_action[0, 0]
     assert abs(final - best) < 0.15 and abs(final - best) < start_error + 0.1
     assert stats["num_gradient_steps"] == 10 and np.isfinite(stats["critic_loss"])
     # the critic has learned the reward's shape: better near the optimum than at the far edge
@@ -62,11 +62,12 @@ def test_no_update_before_a_full_batch_and_discrete_rejected():
 def test_state_dict_round_trip():
     learner = SACLearner(STATE, ONE_D, Hyperparameters(batch_size=32), "MLP", seed=0)
     obs = np.linspace(-1, 1, 40, dtype=np.float32)[:, None]
-    learner.observe(obs, learner.act(obs), obs[:, 0], obs, np.ones(40))
+    learner.observe(obs, learner.act(obs).action, obs[:, 0], obs, np.ones(40))
     learner.update(3)
     restored = SACLearner(STATE, ONE_D, Hyperparameters(batch_size=32), "MLP", seed=7)
     restored.load_state_dict(learner.state_dict())
-    np.testing.assert_allclose(restored.act(obs, deterministic=True), learner.act(obs, deterministic=True))
+    np.testing.assert_allclose(restored.act(obs, deterministic=True).env_action,
+                               learner.act(obs, deterministic=True).env_action)
     assert restored.gradient_steps == 3
     with pytest.raises(ValueError, match="does not match"):
         restored.load_state_dict({**learner.state_dict(), "algorithm": "clipped_ppo"})

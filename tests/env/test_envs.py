@@ -145,7 +145,7 @@ def test_reward_from_a_reward_function_string():
             params = info["params"][car]
             assert rewards[car] == pytest.approx(2 * speed + params["progress"] / 1000 + math.sqrt(params["steps"]))
         assert info["params"][0]["waypoints"][1] == second_waypoint  # the reward reversed its own copy only
-    assert env._params.build([0])[0]["waypoints"][1] == second_waypoint
+    assert env._stepper.params_builder.build([0])[0]["waypoints"][1] == second_waypoint
 
 
 def test_reward_from_a_callable_sees_the_info_params():

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from laplab.env.action_space import ActionSpace
+from laplab.env.spec import model_spec
 from laplab.env.metadata import ModelMetadata
 from laplab.evaluate import EvaluationError, EvaluationSettings, evaluate_policy
 from laplab.evaluate.runner import reset_poses
@@ -103,7 +104,7 @@ def _evaluate(track, behaviours, **settings):
     driver = ScriptedDriver(behaviours)
     settings.setdefault("trials", len(behaviours))
     settings.setdefault("force", True)
-    result = evaluate_policy(driver, track, EvaluationSettings(**settings), metadata=METADATA)
+    result = evaluate_policy(driver, track, EvaluationSettings(**settings), spec=model_spec(METADATA))
     return result, driver
 
 

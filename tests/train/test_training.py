@@ -121,7 +121,7 @@ def test_reward_function_failing_mid_training_stops_and_keeps_checkpoints(tmp_pa
     from laplab.reward.validate import sweep_params
     from laplab.track.registry import DEFAULT_TRACK, load_track
     # fails 2000 calls into training, after the validation sweep's calls
-    limit = len(sweep_params(load_track(DEFAULT_TRACK), default_action_space())) + 2000
+    limit = len(sweep_params(load_track(DEFAULT_TRACK), default_action_space().sweep_actions())) + 2000
     reward = tmp_path / "reward_function.py"
     reward.write_text("CALLS = [0]\n\n\ndef reward_function(params):\n    CALLS[0] += 1\n"
                       f"    if CALLS[0] > {limit}:\n        raise ValueError('boom at call %d' % CALLS[0])\n    return 1.0\n")
@@ -210,6 +210,6 @@ def test_default_hyperparameters_follow_the_sensor():
     assert state.hyperparameters is None and state.hyper().num_epochs == 10  # the console's
     assert camera.hyper().num_epochs == 5  # deepracer-for-cloud's, for camera networks
     # laplab.json writes the values out, so a resumed job keeps them
-    assert TrainConfig.from_dict(camera.to_dict()).hyperparameters["num_epochs"] == 5
+    assert TrainConfig.from_dict(camera.to_dict()).hyperparameters.num_epochs == 5
     given = replace(camera, hyperparameters={**camera.hyper().to_dict(), "num_epochs": 8})
     assert given.hyper().num_epochs == 8

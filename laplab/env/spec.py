@@ -1,0 +1,110 @@
+"""A model's definition in one object: what it observes, how it acts, how it learns.
+
+:class:`ModelSpec` is built in one place, :func:`model_spec`, from a model's ``model_metadata.json``
+(:class:`~laplab.env.metadata.ModelMetadata`) and DeepRacer's ``stack_size`` hyperparameter. Training,
+evaluation, the stored-model loader, export/import and the ONNX graph all take a ModelSpec, so a
+setting one stage forgets (a camera model stacked 3 frames deep evaluated with 1) cannot happen:
+the observation space follows from the spec alone.
+
+:func:`observation_space` is pure: it needs no track and no Simulator. Torch-free.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gymnasium as gym
+import numpy as np
+
+from laplab.env.action_space import ActionSpace, default_action_space
+from laplab.env.metadata import (CAMERA_SENSORS, LIDAR_SENSORS, NETWORKS, STATE_SENSOR, MetadataError,
+                                 ModelMetadata, validate_sensors)
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """Everything that fixes a model's networks and its observations.
+
+    - ``sensors``: DeepRacer sensor names (model_metadata.json's ``sensor``), in file order.
+    - ``stack_size``: camera frames stacked as channels, newest last (DeepRacer's hyperparameter).
+    - ``network``: the ``neural_network`` scheme name; ``algorithm``: ``clipped_ppo`` or ``sac``.
+    - ``action_space``: discrete list or continuous ranges; ``lidar_config``: DISCRETIZED_SECTOR_LIDAR's.
+    - ``version``: model_metadata.json's ``version`` (kept so :attr:`metadata` round-trips).
+    """
+
+    sensors: tuple[str, ...] = (STATE_SENSOR,)
+    stack_size: int = 1
+    network: str = NETWORKS[0]
+    action_space: ActionSpace = field(default_factory=default_action_space)
+    algorithm: str = "clipped_ppo"
+    lidar_config: dict | None = None
+    version: str = "5"
+
+    def __post_init__(self) -> None:
+        if isinstance(self.stack_size, bool) or not isinstance(self.stack_size, (int, np.integer)) \
+                or self.stack_size < 1:
+            raise MetadataError(f"stack_size must be an integer >= 1, got {self.stack_size!r}")
+        object.__setattr__(self, "stack_size", int(self.stack_size))
+        object.__setattr__(self, "sensors", validate_sensors(list(self.sensors), "ModelSpec.sensors"))
+
+    @property
+    def metadata(self) -> ModelMetadata:
+        """The model_metadata.json half of the spec."""
+        return ModelMetadata(self.action_space, self.sensors, self.network, self.algorithm, self.version,
+                             self.lidar_config)
+
+    @property
+    def camera(self) -> str | None:
+        return next((s for s in self.sensors if s in CAMERA_SENSORS), None)
+
+    @property
+    def lidar(self) -> str | None:
+        return next((s for s in self.sensors if s in LIDAR_SENSORS), None)
+
+    @property
+    def observation_space(self) -> gym.Space:
+        return observation_space(self.metadata, self.stack_size)
+
+    @property
+    def gym_action_space(self) -> gym.Space:
+        return self.action_space.gym_space()
+
+
+def model_spec(metadata: ModelMetadata | None = None, stack_size: int = 1) -> ModelSpec:
+    """The one constructor of a :class:`ModelSpec` from a model's metadata and its ``stack_size``."""
+    metadata = metadata if metadata is not None else ModelMetadata()
+    return ModelSpec(sensors=metadata.sensors, stack_size=stack_size, network=metadata.neural_network,
+                     action_space=metadata.action_space, algorithm=metadata.training_algorithm,
+                     lidar_config=metadata.lidar_config, version=metadata.version)
+
+
+def sensor_space(sensor: str, stack_size: int = 1, lidar_config: dict | None = None) -> gym.spaces.Box:
+    """The observation Box of one sensor.
+
+    ``STATE``: float32 (D,) (see :mod:`laplab.sensors.state_vector`); lidars: float32 (64,), (8,) or
+    (sectors x values,); cameras: uint8 (cameras x stack_size, 120, 160), channels first.
+    """
+    if sensor == STATE_SENSOR:
+        from laplab.sensors.state_vector import StateSensorParams
+        return gym.spaces.Box(-np.inf, np.inf, shape=(StateSensorParams().size,), dtype=np.float32)
+    if sensor in LIDAR_SENSORS:
+        from laplab.sensors.lidar import DEFAULT_LIDAR, lidar_observation_shape
+        shape = lidar_observation_shape(sensor, lidar_config, DEFAULT_LIDAR.num_beams)
+        high = np.inf if sensor == "LIDAR" else 1.0
+        return gym.spaces.Box(0.0, high, shape=shape, dtype=np.float32)
+    if sensor in CAMERA_SENSORS:
+        from laplab.sensors.camera import camera_for_sensor
+        cameras = camera_for_sensor(sensor)
+        channels = len(cameras) * int(stack_size)
+        return gym.spaces.Box(0, 255, shape=(channels, cameras[0].height, cameras[0].width), dtype=np.uint8)
+    raise MetadataError(f"unknown sensor {sensor!r}")
+
+
+def observation_space(metadata: ModelMetadata | ModelSpec, stack_size: int = 1) -> gym.Space:
+    """The observation space of a model: one sensor gives its Box, several a Dict keyed by sensor
+    name (in model_metadata.json's order). Pure: no track, no Simulator. A :class:`ModelSpec`
+    brings its own ``stack_size``."""
+    if isinstance(metadata, ModelSpec):
+        metadata, stack_size = metadata.metadata, metadata.stack_size
+    boxes = {name: sensor_space(name, stack_size, metadata.lidar_config) for name in metadata.sensors}
+    return next(iter(boxes.values())) if len(boxes) == 1 else gym.spaces.Dict(boxes)

@@ -1,0 +1,96 @@
+"""What a training job reports, and the interface of those who listen.
+
+The :class:`~laplab.train.trainer.Trainer` knows nothing of files, terminals or web pages: it hands
+these events to its listeners (:meth:`Trainer.subscribe`). The model folder's files are written by one
+listener (:class:`laplab.train.recorder.ModelFolderRecorder`); a terminal display, a web console or an
+object store are others. A listener implements any subset of the ``on_*`` methods of
+:class:`TrainerListener`; they run in the trainer's thread, in subscription order, and should return
+quickly (``on_poses`` runs after every simulation step of the collection).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Protocol
+
+import numpy as np
+
+
+@dataclass
+class IterationReport:
+    """What one iteration did; handed to every callback."""
+
+    iteration: int
+    episodes: int  # training episodes so far
+    env_steps: int  # training steps so far
+    mean_reward: float
+    mean_progress: float
+    completion_rate: float  # fraction of this iteration's training episodes that lapped
+    eval_progress: float  # mean progress of the greedy evaluation laps
+    eval_completed: int
+    eval_episodes: int
+    best_lap_time: float | None  # best lap (training or evaluation) so far, s
+    eval_lap_time: float | None  # mean lap time of this iteration's completed evaluation laps
+    steps_per_second: float  # env steps per wall second this iteration (collection + training)
+    elapsed_s: float
+    time_left_s: float
+    losses: dict[str, float] = field(default_factory=dict)
+    # wall seconds of this iteration spent collecting episodes, learning, on evaluation laps and on
+    # handing the results to the listeners (writing logs and the checkpoint)
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class IterationEpisodes:
+    """The episodes of iteration ``iteration`` (1-based): ``training`` and ``evaluation`` are
+    :class:`laplab.train.collect.EpisodeBatch` objects; ``first_episode`` counts the training episodes
+    of the job before this iteration (simtrace episode numbers continue from it)."""
+
+    iteration: int
+    first_episode: int
+    training: Any
+    evaluation: Any
+
+    def training_trace(self) -> dict[str, np.ndarray]:
+        """The training episodes' simtrace columns, episodes numbered across the whole job."""
+        trace = dict(self.training.trace)
+        trace["episode"] = trace["episode"] + self.first_episode
+        return trace
+
+
+@dataclass(frozen=True)
+class CheckpointReady:
+    """A checkpoint to keep: ``write(path)`` writes it (straight to the file: a camera checkpoint is
+    ~140 MB). ``metric``: mean progress of the iteration's evaluation laps (None for checkpoint 0);
+    ``lap_time``: their mean lap time when all of them lapped."""
+
+    iteration: int
+    env_steps: int
+    episodes: int
+    metric: float | None
+    lap_time: float | None
+    write: Callable[[Any], None]
+
+
+@dataclass(frozen=True)
+class PosesFrame:
+    """The cars of the collection after one step: ``poses`` (N, 3) x m, y m, yaw rad of the model
+    origins, and ``sim_time`` (s since this iteration's collection began)."""
+
+    iteration: int
+    poses: np.ndarray
+    sim_time: float
+
+
+class TrainerListener(Protocol):
+    """Every method is optional; see the module docstring."""
+
+    def on_poses(self, frame: PosesFrame) -> None: ...
+
+    def on_episodes(self, episodes: IterationEpisodes) -> None: ...
+
+    def on_checkpoint(self, checkpoint: CheckpointReady) -> None: ...
+
+    def on_iteration(self, report: IterationReport) -> None: ...
+
+    def on_error(self, message: str) -> None: ...

@@ -1,0 +1,77 @@
+"""The listener that keeps a training job in its model folder (deepracer-for-cloud's layout).
+
+It writes what deepracer-utils reads (``training-simtrace/<k>-iteration.csv``, ``TrainingMetrics.json``,
+checkpoints with ``deepracer_checkpoints.json``), laplab's per-iteration log and ``error.txt``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+
+import numpy as np
+
+from laplab.store.atomic import atomic_write_json, read_json
+from laplab.store.checkpoints import CheckpointStore
+from laplab.store.layout import ModelFolder
+from laplab.store.metrics import TrainingMetricsWriter
+from laplab.store.simtrace import SimtraceWriter
+from laplab.train.events import CheckpointReady, IterationEpisodes, IterationReport
+
+
+class ModelFolderRecorder:
+    """Writes a job's events into ``folder``. ``iteration`` and ``episodes``: where the job starts
+    (a resumed job: its checkpoint's), so records written after that checkpoint by a job that was
+    killed are dropped and rewritten."""
+
+    def __init__(self, folder: ModelFolder, iteration: int = 0, episodes: int = 0):
+        self.folder = folder
+        self.checkpoints = CheckpointStore(folder)
+        if iteration > 0 or episodes > 0:
+            self._drop_records_after(iteration, episodes)
+        self.metrics = TrainingMetricsWriter(folder.training_metrics)
+        self._iteration_rows = self._read_iteration_log(iteration)
+
+    @property
+    def iterations_log(self):
+        """laplab's per-iteration log (losses, entropy, rates), beside DeepRacer's metrics."""
+        return self.folder.metrics_dir / "laplab-iterations.json"
+
+    def _drop_records_after(self, iteration: int, episodes: int) -> None:
+        """A job killed between writing an iteration's logs and its checkpoint left logs of an
+        iteration the checkpoint does not have: remove them so the resumed job rewrites them."""
+        for k in self.folder.list_training_iterations():
+            if k >= iteration:
+                self.folder.training_simtrace(k).unlink(missing_ok=True)
+        path = self.folder.training_metrics
+        if path.exists():
+            data = read_json(path)
+            # Rows of later iterations carry larger episode numbers (evaluation rows carry the last
+            # training episode of their iteration), so this keeps exactly the checkpoint's history.
+            data["metrics"] = [row for row in data.get("metrics", []) if int(row.get("episode", 0)) <= episodes]
+            atomic_write_json(path, data, indent=None)
+
+    def _read_iteration_log(self, iteration: int) -> list[dict]:
+        """The log's rows up to the checkpoint this job starts from (read once, kept in memory)."""
+        path = self.iterations_log
+        rows = read_json(path)["iterations"] if path.exists() else []
+        return [r for r in rows if r["iteration"] <= iteration]
+
+    def on_episodes(self, episodes: IterationEpisodes) -> None:
+        # deepracer-for-cloud numbers simtrace files from 0: iteration k (1-based) -> (k-1)-iteration.csv
+        with SimtraceWriter(self.folder.training_simtrace(episodes.iteration - 1), fsync=False) as writer:
+            writer.write_rows(episodes.training_trace())
+        for append, b in ((self.metrics.append_training, episodes.training),
+                          (self.metrics.append_evaluation, episodes.evaluation)):
+            append(reward_score=b.total_reward, start_time=np.zeros(len(b.status)), metric_time=b.duration,
+                   completion_percentage=b.progress, episode_status=b.status_names())
+
+    def on_checkpoint(self, checkpoint: CheckpointReady) -> None:
+        self.checkpoints.save(checkpoint.write, iteration=checkpoint.iteration, steps=checkpoint.env_steps,
+                              metric=checkpoint.metric, lap_time=checkpoint.lap_time)
+
+    def on_iteration(self, report: IterationReport) -> None:
+        self._iteration_rows.append(asdict(report))
+        atomic_write_json(self.iterations_log, {"iterations": self._iteration_rows}, indent=None)
+
+    def on_error(self, message: str) -> None:
+        self.folder.write_error(message)
