@@ -49,18 +49,43 @@ def _segment_table(polyline: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.column_stack([polyline[:-1], d, inv]))
 
 
-def _point_segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(P, S) distance from each point (P, 2) to each segment a -> b (S, 2)."""
-    seg = b - a
-    rel = points[:, None, :] - a[None]
-    len_sq = (seg * seg).sum(-1)
-    t = np.clip((rel * seg[None]).sum(-1) / np.where(len_sq > 0.0, len_sq, 1.0)[None], 0.0, 1.0)
-    diff = rel - t[..., None] * seg[None]
-    return np.sqrt((diff * diff).sum(-1))
+@nb.njit(cache=True, inline="always")
+def _point_segment_distance(px, py, ax, ay, bx, by):
+    dx, dy = bx - ax, by - ay
+    len_sq = dx * dx + dy * dy
+    t = 0.0 if len_sq == 0.0 else min(max(((px - ax) * dx + (py - ay) * dy) / len_sq, 0.0), 1.0)
+    qx, qy = ax + t * dx - px, ay + t * dy - py
+    return np.sqrt(qx * qx + qy * qy)
 
 
-def _cross(o: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    return (p[..., 0] - o[..., 0]) * (q[..., 1] - o[..., 1]) - (p[..., 1] - o[..., 1]) * (q[..., 0] - o[..., 0])
+@nb.njit(cache=True, inline="always")
+def _orientation(ox, oy, px, py, qx, qy):
+    return (px - ox) * (qy - oy) - (py - oy) * (qx - ox)
+
+
+@nb.njit(cache=True)
+def _candidate_mask(centre, border):
+    """(M, S) bool: border segment j can hold the nearest border point of a point on centre segment i."""
+    m, n = centre.shape[0] - 1, border.shape[0] - 1
+    near = np.zeros((m, n), dtype=np.bool_)
+    d_a, d_b = np.empty(n), np.empty(n)
+    for i in range(m):
+        ax, ay, bx, by = centre[i, 0], centre[i, 1], centre[i + 1, 0], centre[i + 1, 1]
+        reach = np.inf
+        for j in range(n):
+            cx, cy, dx, dy = border[j, 0], border[j, 1], border[j + 1, 0], border[j + 1, 1]
+            d_a[j] = _point_segment_distance(ax, ay, cx, cy, dx, dy)
+            d_b[j] = _point_segment_distance(bx, by, cx, cy, dx, dy)
+            reach = min(reach, max(d_a[j], d_b[j]))
+        limit = reach * (1.0 + 1e-9) + 1e-12
+        for j in range(n):
+            cx, cy, dx, dy = border[j, 0], border[j, 1], border[j + 1, 0], border[j + 1, 1]
+            apart = min(d_a[j], d_b[j], _point_segment_distance(cx, cy, ax, ay, bx, by),
+                        _point_segment_distance(dx, dy, ax, ay, bx, by))
+            crossing = (_orientation(ax, ay, bx, by, cx, cy) * _orientation(ax, ay, bx, by, dx, dy) < 0.0
+                        and _orientation(cx, cy, dx, dy, ax, ay) * _orientation(cx, cy, dx, dy, bx, by) < 0.0)
+            near[i, j] = apart <= limit or crossing
+    return near
 
 
 def border_candidates(centerline: np.ndarray, border: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -72,18 +97,11 @@ def border_candidates(centerline: np.ndarray, border: np.ndarray) -> tuple[np.nd
     only border segments within ``r_i`` of segment i can hold a nearest point. Segment-to-segment
     distance: the least endpoint-to-segment distance, 0 where the two cross.
     """
-    a, b = centerline[:-1], centerline[1:]
-    ba, bb = border[:-1], border[1:]
-    d_a, d_b = _point_segment_distance(a, ba, bb), _point_segment_distance(b, ba, bb)  # (M, S)
-    reach = np.maximum(d_a, d_b).min(axis=1)  # (M,)
-    d_ba, d_bb = _point_segment_distance(ba, a, b).T, _point_segment_distance(bb, a, b).T  # (M, S)
-    apart = np.minimum(np.minimum(d_a, d_b), np.minimum(d_ba, d_bb))
-    A, B, C, D = a[:, None], b[:, None], ba[None], bb[None]
-    crossing = ((_cross(A, B, C) * _cross(A, B, D) < 0.0) & (_cross(C, D, A) * _cross(C, D, B) < 0.0))
-    near = (apart <= reach[:, None] * (1.0 + 1e-9) + 1e-12) | crossing
+    near = _candidate_mask(np.ascontiguousarray(centerline, dtype=np.float64),
+                           np.ascontiguousarray(border, dtype=np.float64))
     rows, ids = np.nonzero(near)  # row-major: ids ascend within each row
-    start = np.zeros(a.shape[0] + 1, dtype=np.int64)
-    np.cumsum(np.bincount(rows, minlength=a.shape[0]), out=start[1:])
+    start = np.zeros(near.shape[0] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=near.shape[0]), out=start[1:])
     return start, ids.astype(np.int64)
 
 
