@@ -79,7 +79,7 @@ class Simulator:
 
         Each car is placed with its origin on the centre line at ``ndist`` (fraction of the lap, default
         from the round-robin schedule), facing along it, at rest. Its progress counts from that point,
-        as DeepRacer's does, so it starts at the reference point's lead (0.14 m of the lap on a straight).
+        as DeepRacer's does, so the first step finds it the reference point's lead (0.14 m on a straight) along.
         """
         cars = np.arange(self.num_cars) if mask is None else np.flatnonzero(mask)
         if cars.size == 0:
@@ -130,11 +130,11 @@ class Simulator:
         for field in (st.steps, st.reverse_count, st.immobile_count):
             field[cars] = 0
         proj = self._project_reference(cars, direction, np.column_stack([origin, yaw]))
-        # DeepRacer's start_ndist is the start pose's own centre-line point (the origin, not the
-        # reference point 0.14 m ahead): the car begins its lap that far along already.
         st.start_arc[cars] = s0
+        # DeepRacer's start_ndist is the start pose's own centre-line point (the origin, not the
+        # reference point 0.14 m ahead): the car begins its lap that far along already. Progress stays
+        # 0 until the first step computes it, as simapp's current_progress does after a reset.
         st.travel[cars] = wrapped_travel(proj.arc_length - s0, track.length)
-        st.progress[cars] = 100.0 * st.travel[cars] / track.length
         st.wheels_on[cars] = 4
         st.status[cars] = IN_PROGRESS
 
