@@ -17,6 +17,7 @@ import numpy as np
 
 from laplab.sim.simulator import Simulator
 from laplab.sim.state import OFF_TRACK, CRASHED
+from laplab.track.params_geometry import reward_geometry
 
 PARAMS_KEYS = (
     "all_wheels_on_track", "x", "y", "heading", "distance_from_center", "is_left_of_center", "progress",
@@ -33,23 +34,23 @@ class ParamsBuilder:
     def __init__(self, sim: Simulator):
         self.sim = sim
         self._waypoints = tuple(tuple(tuple(map(float, p)) for p in t.centerline) for t in sim.tracks)
-        self._road_width = tuple(t.road_width for t in sim.tracks)
+        self._geometry = sim.params_geometry
         self._length = sim.track.length
 
     def build(self, cars: np.ndarray | None = None) -> list[dict]:
         """One params dict per car index in ``cars`` (all cars when None), from the current state."""
         st = self.sim.state
         idx = np.arange(self.sim.num_cars) if cars is None else np.asarray(cars, dtype=np.int64)
-        seg, t, direction = st.segment[idx], st.seg_t[idx], st.direction[idx]
-        width = np.where(direction == 0, _interp(self._road_width[0], seg, t), _interp(self._road_width[1], seg, t))
+        geo = reward_geometry(self._geometry, st.direction[idx], st.segment[idx], st.seg_t[idx], st.ref_x[idx],
+                              st.ref_y[idx])
         heading = np.degrees(st.yaw[idx])
         columns = (
             (st.wheels_on[idx] == 4).tolist(), st.ref_x[idx].tolist(), st.ref_y[idx].tolist(),
-            heading.tolist(), np.abs(st.lateral[idx]).tolist(), (st.lateral[idx] > 0).tolist(),
+            heading.tolist(), np.abs(st.lateral[idx]).tolist(), geo.is_left_of_center.tolist(),
             st.progress[idx].tolist(), st.steps[idx].astype(np.float64).tolist(), st.cmd_speed[idx].tolist(),
-            np.degrees(st.cmd_steer[idx]).tolist(), width.tolist(), seg.tolist(),
+            np.degrees(st.cmd_steer[idx]).tolist(), geo.track_width.tolist(), geo.prev_waypoint.tolist(),
             (st.status[idx] == OFF_TRACK).tolist(), (st.status[idx] == CRASHED).tolist(),
-            (direction == 1).tolist(), st.arc[idx].tolist(),
+            (st.direction[idx] == 1).tolist(), st.arc[idx].tolist(),
         )
         length, waypoints = self._length, self._waypoints
         return [
@@ -66,9 +67,6 @@ class ParamsBuilder:
             for on, x, y, hd, dfc, left, prog, steps, speed, steer, w, sg, off, crash, rev, proj in zip(*columns)
         ]
 
-
-def _interp(values: np.ndarray, seg: np.ndarray, t: np.ndarray) -> np.ndarray:
-    return values[seg] + t * (values[seg + 1] - values[seg])
 
 
 @contextmanager

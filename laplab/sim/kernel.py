@@ -50,7 +50,8 @@ def _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count,
         delta += length
     st.arc[i] = arc
     st.travel[i] += delta
-    progress = min(max(100.0 * st.travel[i] / length, 0.0), 100.0)
+    # DeepRacer's progress has no floor: backing over the start line gives negative values.
+    progress = min(100.0 * st.travel[i] / length, 100.0)
     st.progress[i] = progress
     st.steps[i] += 1
 

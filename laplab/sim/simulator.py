@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
 
 from laplab.sensors.state_vector import StateSensorParams
 from laplab.sim.kernel import empty_obs, observe_kernel, step_kernel
 from laplab.sim.state import IN_PROGRESS, EpisodeParams, SimState, empty_state
 from laplab.track.geometry import Track
+from laplab.track.params_geometry import ParamsGeometry, params_geometry
 from laplab.track.projection import TrackArrays, project_points, track_arrays
 from laplab.vehicle.dynamics import dynamics_constants
 from laplab.vehicle.params import DEEPRACER, VehicleParams
@@ -46,6 +49,12 @@ class Simulator:
     def dt(self) -> float:
         return self.vehicle.dt
 
+    @cached_property
+    def params_geometry(self) -> tuple[ParamsGeometry, ParamsGeometry]:
+        """What DeepRacer's ``closest_waypoints``, ``track_width`` and ``is_left_of_center`` need, per
+        direction (built on first use: only reward params read it)."""
+        return tuple(params_geometry(t) for t in self.tracks)
+
     def track_of(self, car: int) -> Track:
         """The track in the direction car ``car`` is driving."""
         return self.tracks[int(self.state.direction[car])]
@@ -75,7 +84,8 @@ class Simulator:
         """Start new episodes for the cars in ``mask`` (all when None).
 
         Each car is placed with its origin on the centre line at ``ndist`` (fraction of the lap, default
-        from the round-robin schedule), facing along it, at rest.
+        from the round-robin schedule), facing along it, at rest. Its progress counts from that point,
+        as DeepRacer's does, so the first step finds it the reference point's lead (0.14 m on a straight) along.
         """
         cars = np.arange(self.num_cars) if mask is None else np.flatnonzero(mask)
         if cars.size == 0:
@@ -109,7 +119,10 @@ class Simulator:
         seg_len = np.maximum(np.diff(track.arc_length)[proj.segment], 1e-12)
         st.ref_x[cars], st.ref_y[cars] = ref[:, 0], ref[:, 1]
         st.arc[cars], st.segment[cars], st.lateral[cars] = proj.arc_length, proj.segment, proj.lateral
-        st.seg_t[cars] = np.clip((proj.arc_length - track.arc_length[proj.segment]) / seg_len, 0.0, 1.0)
+        # the closing point is reported at arc 0 but lies at the end (t = 1) of the last segment
+        start = track.arc_length[proj.segment]
+        arc = np.where(proj.arc_length < start, proj.arc_length + track.length, proj.arc_length)
+        st.seg_t[cars] = np.clip((arc - start) / seg_len, 0.0, 1.0)
         return proj
 
     def _place(self, cars: np.ndarray, direction: int, ndist: np.ndarray) -> None:
@@ -123,7 +136,11 @@ class Simulator:
         for field in (st.steps, st.reverse_count, st.immobile_count):
             field[cars] = 0
         proj = self._project_reference(cars, direction, np.column_stack([origin, yaw]))
-        st.start_arc[cars] = proj.arc_length
+        st.start_arc[cars] = s0
+        # DeepRacer's start_ndist is the start pose's own centre-line point (the origin, not the
+        # reference point 0.14 m ahead): the car begins its lap that far along already. Progress stays
+        # 0 until the first step computes it, as simapp's current_progress does after a reset.
+        st.travel[cars] = wrapped_travel(proj.arc_length - s0, track.length)
         st.wheels_on[cars] = 4
         st.status[cars] = IN_PROGRESS
 
@@ -205,3 +222,8 @@ class Simulator:
                     np.ascontiguousarray(cmd_speed, dtype=np.float64), self.arrays[0], self.arrays[1],
                     self._vc, self._rules, self.obs, *self._look)
         return stepped
+
+
+def wrapped_travel(delta: np.ndarray, length: float) -> np.ndarray:
+    """Arc-length differences (m) wrapped into [-length / 2, length / 2): the shorter way round."""
+    return np.mod(np.asarray(delta, dtype=np.float64) + 0.5 * length, length) - 0.5 * length

@@ -117,7 +117,8 @@ def test_values_of_a_placed_car(sim, circle_track, radius, theta):
     assert p["is_left_of_center"] is (r_ref < RADIUS)  # CCW: the inside of the circle is on the left
     assert p["projection_distance"] == pytest.approx(arc, abs=1e-9)
     assert p["projection_distance"] == pytest.approx(length * angle / (2 * math.pi), abs=0.01)
-    assert p["progress"] == pytest.approx(100 * (arc - start_arc) / length, abs=1e-7)
+    # DeepRacer counts progress from the start pose's own centre-line point: waypoint 0 (arc 0)
+    assert p["progress"] == pytest.approx(100 * arc / length, abs=1e-7)
     assert p["steps"] == float(len(hops))
     assert p["track_width"] == pytest.approx(WIDTH, abs=TOL)
     assert p["track_length"] == pytest.approx(length, abs=1e-12)
@@ -186,7 +187,9 @@ def test_values_on_the_reversed_track(sim, circle_track, radius):
     assert angles[1] < angles[0]  # clockwise
     assert angles[1] - 1e-9 <= np.unwrap([angles[0], angle])[1] <= angles[0] + 1e-9
     assert p["track_width"] == pytest.approx(WIDTH, abs=TOL)
-    assert p["progress"] >= 0.0
+    # from the start, 2 rad counter-clockwise is more than half a lap back when driving clockwise:
+    # simapp's compute_current_prog counts it backwards, as negative progress
+    assert p["progress"] == pytest.approx(-100 * arc / circle_track.length, abs=1e-7)
 
 
 def test_closest_waypoints_follow_arc_length_not_euclidean_distance(sim, circle_track):

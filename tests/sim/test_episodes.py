@@ -30,12 +30,18 @@ def run_until_done(sim: Simulator, controller, speed: float, max_steps: int = 20
 
 
 def expected_start(track, ndist: float) -> tuple[np.ndarray, float]:
-    """Origin position and arc length of the reference point of a car started at ``ndist``."""
+    """Origin position and arc length of a car started at ``ndist``: its start pose's own centre-line
+    point, from which DeepRacer counts progress (``start_ndist``)."""
     s0 = ndist * track.length
-    origin = track.point_at(s0)
+    return track.point_at(s0), s0
+
+
+def reference_arc(track, ndist: float) -> float:
+    """Arc length of the projection of the reference point of a car started at ``ndist``."""
+    s0 = ndist * track.length
     yaw = float(track.heading_at(s0))
-    ref = origin + DEEPRACER.reference_offset * np.array([math.cos(yaw), math.sin(yaw)])
-    return origin, float(project_points(track_arrays(track), ref[None]).arc_length[0])
+    ref = track.point_at(s0) + DEEPRACER.reference_offset * np.array([math.cos(yaw), math.sin(yaw)])
+    return float(project_points(track_arrays(track), ref[None]).arc_length[0])
 
 
 # ---------------------------------------------------------------- starts
@@ -49,8 +55,12 @@ def test_reset_places_cars_at_rest_on_the_centre_line(stadium_track):
     origin, start_arc = expected_start(stadium_track, 0.3)
     np.testing.assert_allclose([st.x[0], st.y[0]], origin, atol=1e-12)
     assert st.yaw[0] == pytest.approx(float(stadium_track.heading_at(0.3 * stadium_track.length)))
-    assert st.arc[0] == st.start_arc[0] == pytest.approx(start_arc, abs=1e-9)
-    assert st.speed[0] == st.steer[0] == st.progress[0] == st.travel[0] == 0.0
+    assert st.start_arc[0] == pytest.approx(start_arc, abs=1e-9)
+    assert st.arc[0] == pytest.approx(reference_arc(stadium_track, 0.3), abs=1e-9)
+    # the reference point is 0.14 m ahead (a little less along a bend): the lap is that far along
+    assert st.travel[0] == pytest.approx(st.arc[0] - start_arc, abs=1e-9) and 0.13 < st.travel[0] <= 0.14
+    assert st.progress[0] == 0.0  # until the first step, as simapp's current_progress after a reset
+    assert st.speed[0] == st.steer[0] == 0.0
     assert st.steps[0] == 0 and st.status[0] == IN_PROGRESS and st.wheels_on[0] == 4
     np.testing.assert_allclose([st.ref_x[0], st.ref_y[0]],
                                origin + 0.14 * np.array([math.cos(st.yaw[0]), math.sin(st.yaw[0])]), atol=1e-12)
@@ -204,7 +214,9 @@ def test_reversed_when_driving_the_wrong_way(stadium_track):
         sim.step(np.zeros(1), np.ones(1))
         statuses.append(int(sim.state.status[0]))
     assert statuses == [IN_PROGRESS] * 14 + [REVERSED]
-    assert sim.state.wheels_on[0] == 4 and sim.state.progress[0] == 0.0
+    # backing over the start line: DeepRacer's progress goes negative (no floor at 0)
+    assert sim.state.wheels_on[0] == 4 and sim.state.progress[0] < 0.0
+    assert sim.state.progress[0] == pytest.approx(100 * sim.state.travel[0] / stadium_track.length)
 
 
 def test_reversed_needs_consecutive_steps(stadium_track):

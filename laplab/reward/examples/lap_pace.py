@@ -21,7 +21,7 @@ def reward_function(params):
     if params['is_offtrack'] or not params['all_wheels_on_track']:
         return 1e-3
     steps = max(params['steps'], 1.0)
-    pace = params['progress'] / steps
+    pace = max(params['progress'], 0.0) / steps  # progress is negative behind the start line
     half_width = 0.5 * params['track_width']
     centre = 1.0 - min(params['distance_from_center'] / half_width, 1.0)
     reward = PACE_WEIGHT * pace ** 2 + CENTRE_WEIGHT * centre
