@@ -68,7 +68,6 @@ class ParamsBuilder:
         ]
 
 
-
 @contextmanager
 def gc_paused():
     """Pause the cyclic garbage collector for a batch of params dicts and reward calls.

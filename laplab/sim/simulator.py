@@ -84,8 +84,8 @@ class Simulator:
         """Start new episodes for the cars in ``mask`` (all when None).
 
         Each car is placed with its origin on the centre line at ``ndist`` (fraction of the lap, default
-        from the round-robin schedule), facing along it, at rest. Its progress counts from that point,
-        as DeepRacer's does, so the first step finds it the reference point's lead (0.14 m on a straight) along.
+        from the round-robin schedule), facing along it, at rest. Its progress counts from that point, as
+        DeepRacer's does: the first step finds the reference point already 0.14 m along (on a straight).
         """
         cars = np.arange(self.num_cars) if mask is None else np.flatnonzero(mask)
         if cars.size == 0:

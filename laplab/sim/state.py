@@ -65,9 +65,9 @@ class SimState(NamedTuple):
     lateral: np.ndarray  # m, signed offset of the reference point (left positive)
     segment: np.ndarray  # int64, centre-line segment of the projection
     seg_t: np.ndarray  # position within that segment, 0..1
-    travel: np.ndarray  # m, signed distance travelled along the centre line since the start
+    travel: np.ndarray  # m, signed arc length from start_arc to the reference point's projection, unwrapped
     progress: np.ndarray  # %, 0..100
-    start_arc: np.ndarray  # m, arc length where this episode started
+    start_arc: np.ndarray  # m, arc length of the start pose's own centre-line point (DeepRacer's start_ndist)
     lap_time: np.ndarray  # s, set when the lap completes (0 otherwise)
     steps: np.ndarray  # int64, steps taken in this episode
     reverse_count: np.ndarray  # int64, consecutive steps with decreasing progress
