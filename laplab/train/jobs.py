@@ -11,6 +11,7 @@ from laplab.reward.loader import RewardFunction, load_reward_function
 from laplab.reward.validate import validate_reward_function
 from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import model_folder, validate_model_name
+from laplab.store.lock import ModelBusyError, ModelLock
 from laplab.train.config import TrainConfig
 from laplab.train.errors import JobError
 from laplab.train.trainer import Trainer, load_checkpoint, load_weights_only
@@ -44,16 +45,32 @@ def create_training(name: str, config: TrainConfig, init_weights: dict | None = 
                        f"`laplab train --resume {name}` if its training was interrupted.")
     load_track(config.track)
     reward_fn = load_and_validate_reward(config)
+    folder.root.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        folder.root.mkdir()  # atomic: of two jobs creating the same name, exactly one gets here
+    except FileExistsError:
+        raise JobError(f"a model named {name!r} was just created at {folder.root} by another job; "
+                       "pick another name.") from None
+    lock = take_lock(folder)
     folder.create()
     folder.write_model_metadata(config.metadata().to_dict())
     folder.write_hyperparameters(config.hyper().to_dict())
     folder.write_reward_function(reward_file(config).read_text())
     folder.write_laplab_config(config.to_dict())
     trainer = Trainer(folder, config, reward_fn)
+    trainer.lock = lock  # held for the job's lifetime (released by the OS when the process ends)
     if init_weights is not None:
         load_weights_only(trainer.learner, init_weights)
     trainer.save_initial_checkpoint()
     return trainer
+
+
+def take_lock(folder, what: str = "trained") -> ModelLock:
+    """The model folder's job lock, or :class:`JobError` naming the job that holds it."""
+    try:
+        return ModelLock(folder.root, what).acquire()
+    except ModelBusyError as exc:
+        raise JobError(str(exc)) from None
 
 
 def resume_training(name: str, max_time_s: float | None = None, max_episodes: int | None = None) -> Trainer:
@@ -64,6 +81,7 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
     folder = model_folder(name)
     if not folder.exists():
         raise JobError(f"no model named {name!r} to resume (looked in {folder.root}).")
+    lock = take_lock(folder)
     config = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
     if max_time_s is not None:
         config = replace(config, max_time_s=max_time_s)
@@ -73,7 +91,9 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
     state = load_checkpoint(CheckpointStore(folder).resolve("last"))
     if folder.error_file.exists():
         folder.error_file.unlink()
-    return Trainer(folder, config, reward_fn, resume_from=state)
+    trainer = Trainer(folder, config, reward_fn, resume_from=state)
+    trainer.lock = lock
+    return trainer
 
 
 def clone_config(source: str, overrides: dict) -> tuple[TrainConfig, dict]:
