@@ -23,6 +23,33 @@ def _add_job_options(parser: argparse.ArgumentParser, defaults: bool) -> None:
     parser.add_argument("--seed", type=int, default=0 if defaults else none, help="random seed")
 
 
+def add_limit_options(parser: argparse.ArgumentParser, reward: bool = True) -> None:
+    """The job sandbox's options (see laplab.jobs.supervisor.JobLimits and docs/reliability.md)."""
+    parser.add_argument("--memory-limit", default="75%", metavar="SIZE",
+                        help="memory the job may use, e.g. 4G, 50%% (of this machine's), none (default 75%%)")
+    parser.add_argument("--cpu-limit", default=None, metavar="DURATION",
+                        help="CPU time the job may use in all (e.g. 2h; default unlimited)")
+    if reward:
+        parser.add_argument("--reward-timeout", type=float, default=None, metavar="S",
+                            help="CPU seconds one step's reward-function calls may take (default 5)")
+    parser.set_defaults(job_limits=job_limits_from_args)
+
+
+def job_limits_from_args(args: argparse.Namespace):
+    from laplab.cli import UserError
+    from laplab.jobs.supervisor import JobLimits, parse_memory_limit
+    from laplab.train.config import parse_duration
+    try:
+        memory = parse_memory_limit(args.memory_limit)
+        cpu = parse_duration(args.cpu_limit) if args.cpu_limit else None
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    timeout = getattr(args, "reward_timeout", None)
+    if timeout is not None and not timeout > 0:
+        raise UserError(f"--reward-timeout must be a positive number of seconds, got {timeout:g}")
+    return JobLimits(memory_bytes=memory, cpu_seconds=cpu, **({"reward_timeout_s": timeout} if timeout else {}))
+
+
 def register(subparsers) -> None:
     train = subparsers.add_parser("train", help="train a model (PPO or SAC) with a reward function")
     train.add_argument("--name", help="name of the new model (letters, digits, hyphens)")
@@ -34,12 +61,14 @@ def register(subparsers) -> None:
                        help="network arithmetic in training (auto: bfloat16 for camera networks on CPUs "
                             "with native bfloat16, else float32)")
     train.add_argument("--quiet", action="store_true", help="print only the summary")
+    add_limit_options(train)
     train.set_defaults(func=run_train)
     clone = subparsers.add_parser("clone", help="start a new model from another model's weights")
     clone.add_argument("source", help="the model to start from (its best checkpoint)")
     clone.add_argument("name", help="name of the new model")
     _add_job_options(clone, defaults=False)
     clone.add_argument("--quiet", action="store_true")
+    add_limit_options(clone)
     clone.set_defaults(func=run_clone)
 
 
@@ -79,11 +108,22 @@ class _StopFlag:
             signal.signal(sig, handler)
 
 
-def run_trainer(trainer, console: Console, quiet: bool) -> int:
+def run_trainer(trainer, console: Console, quiet: bool, reward_timeout: float | None = None) -> int:
+    """Run ``trainer`` with the progress display, Ctrl-C handling, the reward watchdog and reports
+    to the job's supervisor (when there is one)."""
+    from laplab.jobs.supervisor import job_limits, report
+    from laplab.reward.watchdog import RewardWatchdog, WatchdogLimits
     from laplab.train.progress import ProgressPrinter
+    name = trainer.folder.name
+    report(folder=str(trainer.folder.root), model=name, what="training job",
+           resume=f"laplab train --resume {name}", reward_path=getattr(trainer.reward_fn, "path", None),
+           **({"iteration": trainer.iteration} if trainer.iteration else {}))
+    limits = job_limits()
+    watch = WatchdogLimits(reward_timeout or limits.reward_timeout_s, limits.reward_wait_timeout_s)
     printer = ProgressPrinter(console, trainer, quiet)
-    with _StopFlag() as stop:
-        result = trainer.run(callbacks=(printer,), should_stop=stop.event.is_set)
+    with _StopFlag() as stop, RewardWatchdog(watch):
+        result = trainer.run(callbacks=(printer, lambda r: report(iteration=r.iteration)),
+                             should_stop=stop.event.is_set)
     printer.summary(result)
     return 1 if result.error else 0
 
@@ -109,7 +149,7 @@ def run_train(args: argparse.Namespace) -> int:
         values["domain_randomization"] = bool(args.domain_randomization)
         values["precision"] = args.precision
         trainer = create_training(args.name, replace(TrainConfig(), **values))
-    return run_trainer(trainer, console, args.quiet)
+    return run_trainer(trainer, console, args.quiet, args.reward_timeout)
 
 
 def run_clone(args: argparse.Namespace) -> int:
@@ -119,4 +159,4 @@ def run_clone(args: argparse.Namespace) -> int:
     config, weights = clone_config(args.source, _overrides(args))
     trainer = create_training(args.name, config, init_weights=weights)
     console.print(f"cloned {args.source} -> {args.name}")
-    return run_trainer(trainer, console, args.quiet)
+    return run_trainer(trainer, console, args.quiet, args.reward_timeout)
