@@ -56,12 +56,13 @@ def user_error_types() -> tuple[type[BaseException], ...]:
     from laplab.env.metadata import MetadataError
     from laplab.reward.errors import RewardFunctionError
     from laplab.agents.hyperparameters import HyperparameterError
+    from laplab.store.atomic import CorruptFileError
     from laplab.store.layout import ModelNameError
     from laplab.track.geometry import TrackError
     from laplab.train.config import ConfigError
     from laplab.train.errors import JobError
     return (UserError, TrackError, MetadataError, ActionSpaceError, RewardFunctionError, FileNotFoundError,
-            HyperparameterError, ModelNameError, ConfigError, JobError)
+            HyperparameterError, ModelNameError, ConfigError, JobError, CorruptFileError)
 
 
 def main(argv: list[str] | None = None) -> int:

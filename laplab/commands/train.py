@@ -61,6 +61,8 @@ def register(subparsers) -> None:
                        help="network arithmetic in training (auto: bfloat16 for camera networks on CPUs "
                             "with native bfloat16, else float32)")
     train.add_argument("--quiet", action="store_true", help="print only the summary")
+    train.add_argument("--trust-reward", action="store_true",
+                       help="run the reward function of an imported model (--resume); recorded, asked once")
     add_limit_options(train)
     train.set_defaults(func=run_train)
     clone = subparsers.add_parser("clone", help="start a new model from another model's weights")
@@ -68,6 +70,8 @@ def register(subparsers) -> None:
     clone.add_argument("name", help="name of the new model")
     _add_job_options(clone, defaults=False)
     clone.add_argument("--quiet", action="store_true")
+    clone.add_argument("--trust-reward", action="store_true",
+                       help="run the source's reward function when it came from an imported archive; recorded")
     add_limit_options(clone)
     clone.set_defaults(func=run_clone)
 
@@ -140,7 +144,11 @@ def run_train(args: argparse.Namespace) -> int:
         if args.name:
             raise UserError("give either --name (a new model) or --resume NAME, not both")
         overrides = _overrides(args)
-        trainer = resume_training(args.resume, overrides["max_time_s"], overrides["max_episodes"])
+        if args.reward:
+            raise UserError("a resumed job keeps its reward function; to train with another one, "
+                            f"`laplab clone {args.resume} NEW --reward FILE`")
+        trainer = resume_training(args.resume, overrides["max_time_s"], overrides["max_episodes"],
+                                  trust_reward=args.trust_reward)
         console.print(f"resuming {args.resume} at iteration {trainer.iteration} ({trainer.episodes} episodes)")
     else:
         if not args.name:
@@ -156,7 +164,7 @@ def run_clone(args: argparse.Namespace) -> int:
     from laplab.train.jobs import clone_config, create_training
 
     console = Console(highlight=False, soft_wrap=True)
-    config, weights = clone_config(args.source, _overrides(args))
+    config, weights = clone_config(args.source, _overrides(args), trust_reward=args.trust_reward)
     trainer = create_training(args.name, config, init_weights=weights)
     console.print(f"cloned {args.source} -> {args.name}")
     return run_trainer(trainer, console, args.quiet, args.reward_timeout)

@@ -67,14 +67,21 @@ class ModelLock:
     def held(self) -> bool:
         return self._fd is not None
 
-    def acquire(self, command: str | None = None) -> "ModelLock":
-        """Take the lock without waiting; raises :class:`ModelBusyError` naming the holder if taken."""
+    def acquire(self, command: str | None = None, wait_s: float = 1.0) -> "ModelLock":
+        """Take the lock; raises :class:`ModelBusyError` naming the holder if it is still taken after
+        ``wait_s`` seconds (a short wait lets a job that is being killed finish dying)."""
         if self._fd is not None:
             return self
         fd = os.open(lock_path(self.root), os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
+        deadline = time.monotonic() + wait_s
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() < deadline:
+                    time.sleep(0.05)
+                    continue
             os.close(fd)
             holder = read_holder(self.root)
             raise ModelBusyError(

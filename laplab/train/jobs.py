@@ -9,12 +9,13 @@ from pathlib import Path
 from laplab.env.vector import DEFAULT_REWARD
 from laplab.reward.loader import RewardFunction, load_reward_function
 from laplab.reward.validate import validate_reward_function
-from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import model_folder, validate_model_name
 from laplab.store.lock import ModelBusyError, ModelLock
 from laplab.train.config import TrainConfig
 from laplab.train.errors import JobError
-from laplab.train.trainer import Trainer, load_checkpoint, load_weights_only
+from laplab.train.archive import check_reward_trusted
+from laplab.train.checkpoint_read import read_checkpoint
+from laplab.train.trainer import Trainer, load_weights_only
 from laplab.track.registry import load_track
 
 
@@ -73,22 +74,25 @@ def take_lock(folder, what: str = "trained") -> ModelLock:
         raise JobError(str(exc)) from None
 
 
-def resume_training(name: str, max_time_s: float | None = None, max_episodes: int | None = None) -> Trainer:
+def resume_training(name: str, max_time_s: float | None = None, max_episodes: int | None = None,
+                    trust_reward: bool = False) -> Trainer:
     """A Trainer that continues ``name`` from its last checkpoint (iteration count continues).
 
     ``max_time_s`` (a new budget for this session) and ``max_episodes`` (a new total) override the
-    stored stop conditions."""
+    stored stop conditions. An imported model's reward function runs only once trusted
+    (``trust_reward``, recorded: see :mod:`laplab.train.archive`)."""
     folder = model_folder(name)
     if not folder.exists():
         raise JobError(f"no model named {name!r} to resume (looked in {folder.root}).")
     lock = take_lock(folder)
+    check_reward_trusted(folder, trust_reward, f"laplab train --resume {name}")
     config = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
     if max_time_s is not None:
         config = replace(config, max_time_s=max_time_s)
     if max_episodes is not None:
         config = replace(config, max_episodes=max_episodes)
     reward_fn = load_and_validate_reward(config, folder.reward_function)
-    state = load_checkpoint(CheckpointStore(folder).resolve("last"))
+    _, state = read_checkpoint(folder, "last")
     if folder.error_file.exists():
         folder.error_file.unlink()
     trainer = Trainer(folder, config, reward_fn, resume_from=state)
@@ -96,8 +100,11 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
     return trainer
 
 
-def clone_config(source: str, overrides: dict) -> tuple[TrainConfig, dict]:
+def clone_config(source: str, overrides: dict, trust_reward: bool = False) -> tuple[TrainConfig, dict]:
     """The config of a clone of ``source`` with ``overrides`` applied, and the weights to start from.
+
+    Without a new ``reward_path`` the clone runs the source's reward function, which must be trusted
+    if the source was imported (``trust_reward`` records it).
 
     The action space and the sensors cannot change (DeepRacer's rule): a different
     model_metadata.json is refused with a message naming what differs.
@@ -107,6 +114,7 @@ def clone_config(source: str, overrides: dict) -> tuple[TrainConfig, dict]:
         raise JobError(f"no model named {source!r} to clone (looked in {folder.root}).")
     base = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
     if overrides.get("reward_path") is None:
+        check_reward_trusted(folder, trust_reward, f"laplab clone {source} NEW")
         overrides = {**overrides, "reward_path": str(folder.reward_function)}
     new_meta = overrides.get("model_metadata")
     if new_meta is not None:
@@ -118,7 +126,7 @@ def clone_config(source: str, overrides: dict) -> tuple[TrainConfig, dict]:
                 raise JobError(f"a clone keeps its source's {what}: {source!r} has {_show(a)}, the new "
                                f"model_metadata.json asks for {_show(b)}.")
     config = replace(base, **{k: v for k, v in overrides.items() if v is not None})
-    state = load_checkpoint(CheckpointStore(folder).resolve("best"))
+    _, state = read_checkpoint(folder, "best")
     return config, state["learner"]
 
 

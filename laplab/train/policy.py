@@ -11,10 +11,10 @@ import numpy as np
 from laplab.env.metadata import ModelMetadata
 from laplab.env.observations import ObservationBuilder
 from laplab.sim.simulator import Simulator
-from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import ModelFolder, model_folder
 from laplab.train.config import TrainConfig
-from laplab.train.trainer import build_learner, load_checkpoint
+from laplab.train.checkpoint_read import read_checkpoint
+from laplab.train.trainer import build_learner
 from laplab.track.registry import load_track
 from laplab.vehicle.params import vehicle_preset
 
@@ -53,12 +53,16 @@ def load_model_policy(name: str, checkpoint: str = "best", seed: int = 0) -> Mod
     if not folder.exists():
         raise FileNotFoundError(f"no model named {name!r} (looked in {folder.root}).")
     config = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
-    path = CheckpointStore(folder).resolve(checkpoint)
-    state = load_checkpoint(path)
+    checkpoint_name, state = read_checkpoint(folder, checkpoint)
     metadata = config.metadata()
     sim = Simulator(load_track(config.track), 1, vehicle_preset(config.vehicle))
     space = ObservationBuilder(sim, metadata, stack_size=config.hyper().stack_size).single_space
     # Driving, evaluation and export run in float32 whatever the training precision was.
     learner = build_learner(replace(config, precision="float32"), space, seed)
-    learner.load_state_dict(state["learner"])
-    return ModelPolicy(name, folder, config, metadata, path.name, learner, space)
+    try:
+        learner.load_state_dict(state["learner"])
+    except (KeyError, ValueError, RuntimeError, TypeError) as exc:
+        from laplab.store.atomic import CorruptFileError
+        raise CorruptFileError(f"checkpoint {str(folder.model_dir / checkpoint_name)!r} does not fit the model's "
+                               f"network ({type(exc).__name__}: {' '.join(str(exc).split())[:200]}).") from None
+    return ModelPolicy(name, folder, config, metadata, checkpoint_name, learner, space)
