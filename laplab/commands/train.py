@@ -128,6 +128,8 @@ def run_trainer(trainer, console: Console, quiet: bool, reward_timeout: float | 
     with _StopFlag() as stop, RewardWatchdog(watch):
         result = trainer.run(callbacks=(printer, lambda r: report(iteration=r.iteration)),
                              should_stop=stop.event.is_set)
+    if getattr(trainer, "lock", None) is not None:
+        trainer.lock.release()  # the job is over: the folder is free for the next one
     printer.summary(result)
     return 1 if result.error else 0
 

@@ -100,6 +100,9 @@ class ModelLock:
             fd, self._fd = self._fd, None
             os.close(fd)  # closing the last descriptor releases the flock
 
+    def __del__(self) -> None:
+        self.release()
+
     def __enter__(self) -> "ModelLock":
         return self.acquire()
 

@@ -53,16 +53,20 @@ def create_training(name: str, config: TrainConfig, init_weights: dict | None = 
         raise JobError(f"a model named {name!r} was just created at {folder.root} by another job; "
                        "pick another name.") from None
     lock = take_lock(folder)
-    folder.create()
-    folder.write_model_metadata(config.metadata().to_dict())
-    folder.write_hyperparameters(config.hyper().to_dict())
-    folder.write_reward_function(reward_file(config).read_text())
-    folder.write_laplab_config(config.to_dict())
-    trainer = Trainer(folder, config, reward_fn)
+    try:
+        folder.create()
+        folder.write_model_metadata(config.metadata().to_dict())
+        folder.write_hyperparameters(config.hyper().to_dict())
+        folder.write_reward_function(reward_file(config).read_text())
+        folder.write_laplab_config(config.to_dict())
+        trainer = Trainer(folder, config, reward_fn)
+        if init_weights is not None:
+            load_weights_only(trainer.learner, init_weights)
+        trainer.save_initial_checkpoint()
+    except BaseException:
+        lock.release()
+        raise
     trainer.lock = lock  # held for the job's lifetime (released by the OS when the process ends)
-    if init_weights is not None:
-        load_weights_only(trainer.learner, init_weights)
-    trainer.save_initial_checkpoint()
     return trainer
 
 
@@ -85,17 +89,21 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
     if not folder.exists():
         raise JobError(f"no model named {name!r} to resume (looked in {folder.root}).")
     lock = take_lock(folder)
-    check_reward_trusted(folder, trust_reward, f"laplab train --resume {name}")
-    config = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
-    if max_time_s is not None:
-        config = replace(config, max_time_s=max_time_s)
-    if max_episodes is not None:
-        config = replace(config, max_episodes=max_episodes)
-    reward_fn = load_and_validate_reward(config, folder.reward_function)
-    _, state = read_checkpoint(folder, "last")
-    if folder.error_file.exists():
-        folder.error_file.unlink()
-    trainer = Trainer(folder, config, reward_fn, resume_from=state)
+    try:
+        check_reward_trusted(folder, trust_reward, f"laplab train --resume {name}")
+        config = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
+        if max_time_s is not None:
+            config = replace(config, max_time_s=max_time_s)
+        if max_episodes is not None:
+            config = replace(config, max_episodes=max_episodes)
+        reward_fn = load_and_validate_reward(config, folder.reward_function)
+        _, state = read_checkpoint(folder, "last")
+        if folder.error_file.exists():
+            folder.error_file.unlink()
+        trainer = Trainer(folder, config, reward_fn, resume_from=state)
+    except BaseException:
+        lock.release()
+        raise
     trainer.lock = lock
     return trainer
 
