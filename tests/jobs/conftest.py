@@ -39,3 +39,13 @@ def laplab_cli(laplab_home):
         popen.setdefault("stderr", subprocess.PIPE)
         return subprocess.Popen([sys.executable, "-m", "laplab.cli", *map(str, args)], env=environment, **popen)
     return start
+
+
+@pytest.fixture
+def tiny_config():
+    """A TrainConfig with TINY_HP; pass changes as keyword arguments."""
+    from dataclasses import replace
+
+    def make(**changes) -> TrainConfig:
+        return replace(TrainConfig(), hyperparameters={**TrainConfig().hyper().to_dict(), **TINY_HP}, **changes)
+    return make

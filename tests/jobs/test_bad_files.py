@@ -5,25 +5,21 @@ from __future__ import annotations
 
 import ast
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
-from conftest import TINY_HP
 from laplab.cli import main
 from laplab.store.layout import model_folder
 from laplab.store.checkpoints import CheckpointStore
-from laplab.train.config import TrainConfig
 from laplab.train.jobs import create_training
 
 REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture
-def trained(laplab_home):
-    config = replace(TrainConfig(), hyperparameters={**TrainConfig().hyper().to_dict(), **TINY_HP}, max_episodes=2)
-    trainer = create_training("m", config)
+def trained(laplab_home, tiny_config):
+    trainer = create_training("m", tiny_config(max_episodes=2))
     trainer.run()
     trainer.lock.release()
     return model_folder("m")

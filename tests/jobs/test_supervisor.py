@@ -75,20 +75,14 @@ def test_a_hanging_reward_function_ends_the_job_with_its_line_and_params(laplab_
     assert CheckpointStore(folder).last().name != "0_Step-0.ckpt"
 
 
-def test_a_reward_function_that_waits_forever_is_stopped(tmp_path, tiny_hp):
+def test_a_reward_function_that_waits_forever_is_stopped(tmp_path, tiny_config):
     # The CPU limit cannot see a call blocked in sleep: the waiting limit does (shortened here).
     from laplab.commands.train import run_trainer
     from laplab.jobs import supervisor
     from laplab.train.jobs import create_training
-    from dataclasses import replace
-
-    from laplab.train.config import TrainConfig
-    from conftest import TINY_HP
     reward = tmp_path / "sleeps.py"
     reward.write_text(TRIGGERED.format(trigger=str(tmp_path / "sleeps.go"), body="        time.sleep(3600)"))
-    config = replace(TrainConfig(), hyperparameters={**TrainConfig().hyper().to_dict(), **TINY_HP},
-                     reward_path=str(reward), max_episodes=40)
-    trainer = create_training("sleeps", config)
+    trainer = create_training("sleeps", tiny_config(reward_path=str(reward), max_episodes=40))
     (tmp_path / "sleeps.go").write_text("go")
     from rich.console import Console
     limits = JobLimits(reward_timeout_s=1.0, reward_wait_timeout_s=2.0)
