@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import json
+import os
+import secrets
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
 from laplab.env.vector import DEFAULT_REWARD
 from laplab.reward.loader import RewardFunction, load_reward_function
 from laplab.reward.validate import validate_reward_function
-from laplab.store.layout import model_folder, validate_model_name
+from laplab.store.checkpoints import CheckpointStore
+from laplab.store.layout import ModelFolder, model_folder, validate_model_name
 from laplab.store.lock import ModelBusyError, ModelLock
 from laplab.train.config import TrainConfig
 from laplab.train.errors import JobError
@@ -46,19 +50,28 @@ def create_training(name: str, config: TrainConfig, init_weights: dict | None = 
                        f"`laplab train --resume {name}` if its training was interrupted.")
     load_track(config.track)
     reward_fn = load_and_validate_reward(config)
+    # The folder is written beside its final place and renamed into it: a job killed at any moment
+    # leaves a complete model folder or none (an unfinished one is a hidden .create-* folder).
     folder.root.parent.mkdir(parents=True, exist_ok=True)
+    staging = ModelFolder(folder.root.parent / f".create-{name}-{secrets.token_hex(4)}")
     try:
-        folder.root.mkdir()  # atomic: of two jobs creating the same name, exactly one gets here
-    except FileExistsError:
-        raise JobError(f"a model named {name!r} was just created at {folder.root} by another job; "
-                       "pick another name.") from None
-    lock = take_lock(folder)
+        staging.create()
+        staging.write_model_metadata(config.metadata().to_dict())
+        staging.write_hyperparameters(config.hyper().to_dict())
+        staging.write_reward_function(reward_file(config).read_text())
+        staging.write_laplab_config(config.to_dict())
+        lock = take_lock(staging)  # the lock file moves with the folder (same inode)
+        try:
+            os.rename(staging.root, folder.root)  # atomic; fails when the name was taken meanwhile
+        except OSError:
+            lock.release()
+            raise JobError(f"a model named {name!r} was just created at {folder.root} by another job; "
+                           "pick another name.") from None
+    except BaseException:
+        shutil.rmtree(staging.root, ignore_errors=True)
+        raise
+    lock.root = folder.root
     try:
-        folder.create()
-        folder.write_model_metadata(config.metadata().to_dict())
-        folder.write_hyperparameters(config.hyper().to_dict())
-        folder.write_reward_function(reward_file(config).read_text())
-        folder.write_laplab_config(config.to_dict())
         trainer = Trainer(folder, config, reward_fn)
         if init_weights is not None:
             load_weights_only(trainer.learner, init_weights)
@@ -97,10 +110,15 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
         if max_episodes is not None:
             config = replace(config, max_episodes=max_episodes)
         reward_fn = load_and_validate_reward(config, folder.reward_function)
-        _, state = read_checkpoint(folder, "last")
+        if CheckpointStore(folder).names():
+            _, state = read_checkpoint(folder, "last")
+        else:  # killed before its first checkpoint was written: start again from scratch
+            state = None
         if folder.error_file.exists():
             folder.error_file.unlink()
         trainer = Trainer(folder, config, reward_fn, resume_from=state)
+        if state is None:
+            trainer.save_initial_checkpoint()
     except BaseException:
         lock.release()
         raise
