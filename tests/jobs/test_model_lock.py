@@ -26,7 +26,7 @@ def test_lock_is_exclusive_and_names_its_holder(tmp_path):
 
 def test_a_killed_holder_leaves_no_stale_lock(tmp_path):
     code = ("import sys, time; from laplab.store.lock import ModelLock; "
-            f"ModelLock({str(tmp_path)!r}).acquire(); print('held', flush=True); time.sleep(60)")
+            f"lock = ModelLock({str(tmp_path)!r}).acquire(); print('held', flush=True); time.sleep(60)")
     child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE)
     assert child.stdout.readline().strip() == b"held"
     assert is_locked(tmp_path) and read_holder(tmp_path).pid == child.pid
@@ -36,7 +36,7 @@ def test_a_killed_holder_leaves_no_stale_lock(tmp_path):
     ModelLock(tmp_path).acquire().release()
 
 
-def test_second_resume_of_a_training_model_fails_at_once(laplab_cli, tiny_hp):
+def test_second_resume_of_a_training_model_fails_at_once(laplab_cli, tiny_hp, tmp_path):
     first = laplab_cli("train", "--name", "twice", "--hyperparameters", tiny_hp, "--max-time", "10m", "--quiet")
     folder = model_folder("twice")
     deadline = time.time() + 120
@@ -55,6 +55,15 @@ def test_second_resume_of_a_training_model_fails_at_once(laplab_cli, tiny_hp):
             else:
                 assert "already exists" in text, text
             assert time.time() - started < 60
+        # Readers take no lock and read a consistent checkpoint while the job trains and prunes.
+        for which in ("last", "best"):
+            reader = laplab_cli("evaluate", "twice", "--trials", "1", "--checkpoint", which)
+            out, err = reader.communicate(timeout=150)
+            assert reader.returncode == 0, err.decode()
+        exporter = laplab_cli("export", "twice", "--checkpoint", "last", "--out", tmp_path / "twice.tar.gz")
+        assert exporter.wait(150) == 0, exporter.stderr.read().decode()
+        importer = laplab_cli("import", tmp_path / "twice.tar.gz", "--name", "copy")
+        assert importer.wait(150) == 0, importer.stderr.read().decode()
         assert first.poll() is None  # the first job is untouched
     finally:
         first.send_signal(signal.SIGTERM)
