@@ -101,7 +101,10 @@ class ModelLock:
             os.close(fd)  # closing the last descriptor releases the flock
 
     def __del__(self) -> None:
-        self.release()
+        try:
+            self.release()
+        except Exception:  # noqa: BLE001 - interpreter shutdown: the OS releases the lock anyway
+            pass
 
     def __enter__(self) -> "ModelLock":
         return self.acquire()
