@@ -24,7 +24,8 @@ from laplab.agents.onnx_export import (ONNX_OPSET, graph_feed, graph_inputs, onn
 from laplab.cli import main  # noqa: E402
 from laplab.commands.export import export_model_onnx  # noqa: E402
 from laplab.env.metadata import ModelMetadata  # noqa: E402
-from laplab.store.archive import MANIFEST, ArchiveError, export_model_archive, import_model_archive  # noqa: E402
+from laplab.store.archive import MANIFEST, ArchiveError  # noqa: E402
+from laplab.train.archive import export_model_archive, import_model_archive  # noqa: E402
 from laplab.store.layout import list_models, model_folder, models_root  # noqa: E402
 from laplab.train.config import TrainConfig  # noqa: E402
 from laplab.train.jobs import create_training  # noqa: E402

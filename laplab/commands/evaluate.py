@@ -51,6 +51,8 @@ def register(subparsers) -> None:
     parser.add_argument("--video", action="store_true", help="write a video of the first trial")
     parser.add_argument("--list", action="store_true", help="list the model's evaluations instead of running one")
     parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    from laplab.commands.train import add_limit_options
+    add_limit_options(parser, reward=False)
     parser.set_defaults(func=run)
 
 
@@ -61,6 +63,8 @@ def run(args: argparse.Namespace) -> int:
     console = Console(highlight=False, soft_wrap=True)
     if args.list:
         return _list(args, console)
+    from laplab.jobs.supervisor import report
+    report(model=args.model, what="evaluation")
     try:
         settings = EvaluationSettings(
             track=args.track, trials=args.trials, checkpoint=args.checkpoint,

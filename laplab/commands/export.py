@@ -74,7 +74,8 @@ def export_model_onnx(name: str, checkpoint: str = "best", out_dir: str | Path |
 
 
 def export_command(args: argparse.Namespace) -> int:
-    from laplab.store.archive import ArchiveError, export_model_archive
+    from laplab.store.archive import ArchiveError
+    from laplab.train.archive import export_model_archive
     if args.format == "onnx":
         result = export_model_onnx(args.model, args.checkpoint, args.out)
         check = ("" if result.parity_error is None
@@ -90,10 +91,15 @@ def export_command(args: argparse.Namespace) -> int:
 
 
 def import_command(args: argparse.Namespace) -> int:
-    from laplab.store.archive import ArchiveError, import_model_archive
+    from laplab.store.archive import ArchiveError
+    from laplab.train.archive import import_model_archive
     try:
         imported = import_model_archive(args.file, args.name)
     except ArchiveError as exc:
         raise UserError(str(exc)) from None
     print(f"imported model {imported.name!r} (checkpoint {imported.checkpoint}) into {imported.folder.root}")
+    print(f"note: the archive holds a reward function ({imported.folder.reward_function}); it is Python code "
+          f"and will run with your permissions if you train this model (`laplab train --resume {imported.name}`, "
+          f"`laplab clone {imported.name} NEW`). Read it first: those commands ask for --trust-reward once, "
+          f"or clone with your own --reward FILE. Evaluating and exporting the model run no code from it.")
     return 0

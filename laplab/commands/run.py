@@ -17,6 +17,8 @@ def register(subparsers) -> None:
     parser.add_argument("--trials", type=int, default=3, help="evaluation trials (default 3)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-report", action="store_true", help="skip the HTML report")
+    from laplab.commands.train import add_limit_options
+    add_limit_options(parser)
     parser.set_defaults(func=run)
 
 
@@ -39,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
                      seed=args.seed, reward_path=str(Path(args.reward).resolve()) if args.reward else None)
     console.rule(f"1/3 train {name}")
     trainer = create_training(name, config)
-    code = run_trainer(trainer, console, quiet=False)
+    code = run_trainer(trainer, console, quiet=False, reward_timeout=args.reward_timeout)
     if code != 0:
         return code
     console.rule(f"2/3 evaluate {name}")

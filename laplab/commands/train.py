@@ -23,6 +23,33 @@ def _add_job_options(parser: argparse.ArgumentParser, defaults: bool) -> None:
     parser.add_argument("--seed", type=int, default=0 if defaults else none, help="random seed")
 
 
+def add_limit_options(parser: argparse.ArgumentParser, reward: bool = True) -> None:
+    """The job sandbox's options (see laplab.jobs.supervisor.JobLimits and docs/reliability.md)."""
+    parser.add_argument("--memory-limit", default="75%", metavar="SIZE",
+                        help="memory the job may use, e.g. 4G, 50%% (of this machine's), none (default 75%%)")
+    parser.add_argument("--cpu-limit", default=None, metavar="DURATION",
+                        help="CPU time the job may use in all (e.g. 2h; default unlimited)")
+    if reward:
+        parser.add_argument("--reward-timeout", type=float, default=None, metavar="S",
+                            help="CPU seconds one step's reward-function calls may take (default 5)")
+    parser.set_defaults(job_limits=job_limits_from_args)
+
+
+def job_limits_from_args(args: argparse.Namespace):
+    from laplab.cli import UserError
+    from laplab.jobs.supervisor import JobLimits, parse_memory_limit
+    from laplab.train.config import parse_duration
+    try:
+        memory = parse_memory_limit(args.memory_limit)
+        cpu = parse_duration(args.cpu_limit) if args.cpu_limit else None
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    timeout = getattr(args, "reward_timeout", None)
+    if timeout is not None and not timeout > 0:
+        raise UserError(f"--reward-timeout must be a positive number of seconds, got {timeout:g}")
+    return JobLimits(memory_bytes=memory, cpu_seconds=cpu, **({"reward_timeout_s": timeout} if timeout else {}))
+
+
 def register(subparsers) -> None:
     train = subparsers.add_parser("train", help="train a model (PPO or SAC) with a reward function")
     train.add_argument("--name", help="name of the new model (letters, digits, hyphens)")
@@ -34,12 +61,18 @@ def register(subparsers) -> None:
                        help="network arithmetic in training (auto: bfloat16 for camera networks on CPUs "
                             "with native bfloat16, else float32)")
     train.add_argument("--quiet", action="store_true", help="print only the summary")
+    train.add_argument("--trust-reward", action="store_true",
+                       help="run the reward function of an imported model (--resume); recorded, asked once")
+    add_limit_options(train)
     train.set_defaults(func=run_train)
     clone = subparsers.add_parser("clone", help="start a new model from another model's weights")
     clone.add_argument("source", help="the model to start from (its best checkpoint)")
     clone.add_argument("name", help="name of the new model")
     _add_job_options(clone, defaults=False)
     clone.add_argument("--quiet", action="store_true")
+    clone.add_argument("--trust-reward", action="store_true",
+                       help="run the source's reward function when it came from an imported archive; recorded")
+    add_limit_options(clone)
     clone.set_defaults(func=run_clone)
 
 
@@ -79,11 +112,24 @@ class _StopFlag:
             signal.signal(sig, handler)
 
 
-def run_trainer(trainer, console: Console, quiet: bool) -> int:
+def run_trainer(trainer, console: Console, quiet: bool, reward_timeout: float | None = None) -> int:
+    """Run ``trainer`` with the progress display, Ctrl-C handling, the reward watchdog and reports
+    to the job's supervisor (when there is one)."""
+    from laplab.jobs.supervisor import job_limits, report
+    from laplab.reward.watchdog import RewardWatchdog, WatchdogLimits
     from laplab.train.progress import ProgressPrinter
+    name = trainer.folder.name
+    report(folder=str(trainer.folder.root), model=name, what="training job",
+           resume=f"laplab train --resume {name}", reward_path=getattr(trainer.reward_fn, "path", None),
+           **({"iteration": trainer.iteration} if trainer.iteration else {}))
+    limits = job_limits()
+    watch = WatchdogLimits(reward_timeout or limits.reward_timeout_s, limits.reward_wait_timeout_s)
     printer = ProgressPrinter(console, trainer, quiet)
-    with _StopFlag() as stop:
-        result = trainer.run(callbacks=(printer,), should_stop=stop.event.is_set)
+    with _StopFlag() as stop, RewardWatchdog(watch):
+        result = trainer.run(callbacks=(printer, lambda r: report(iteration=r.iteration)),
+                             should_stop=stop.event.is_set)
+    if getattr(trainer, "lock", None) is not None:
+        trainer.lock.release()  # the job is over: the folder is free for the next one
     printer.summary(result)
     return 1 if result.error else 0
 
@@ -100,7 +146,11 @@ def run_train(args: argparse.Namespace) -> int:
         if args.name:
             raise UserError("give either --name (a new model) or --resume NAME, not both")
         overrides = _overrides(args)
-        trainer = resume_training(args.resume, overrides["max_time_s"], overrides["max_episodes"])
+        if args.reward:
+            raise UserError("a resumed job keeps its reward function; to train with another one, "
+                            f"`laplab clone {args.resume} NEW --reward FILE`")
+        trainer = resume_training(args.resume, overrides["max_time_s"], overrides["max_episodes"],
+                                  trust_reward=args.trust_reward)
         console.print(f"resuming {args.resume} at iteration {trainer.iteration} ({trainer.episodes} episodes)")
     else:
         if not args.name:
@@ -109,14 +159,14 @@ def run_train(args: argparse.Namespace) -> int:
         values["domain_randomization"] = bool(args.domain_randomization)
         values["precision"] = args.precision
         trainer = create_training(args.name, replace(TrainConfig(), **values))
-    return run_trainer(trainer, console, args.quiet)
+    return run_trainer(trainer, console, args.quiet, args.reward_timeout)
 
 
 def run_clone(args: argparse.Namespace) -> int:
     from laplab.train.jobs import clone_config, create_training
 
     console = Console(highlight=False, soft_wrap=True)
-    config, weights = clone_config(args.source, _overrides(args))
+    config, weights = clone_config(args.source, _overrides(args), trust_reward=args.trust_reward)
     trainer = create_training(args.name, config, init_weights=weights)
     console.print(f"cloned {args.source} -> {args.name}")
-    return run_trainer(trainer, console, args.quiet)
+    return run_trainer(trainer, console, args.quiet, args.reward_timeout)

@@ -115,4 +115,12 @@ def load_model_metadata(path: str | Path) -> ModelMetadata:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
         raise MetadataError(f"{path}: not valid JSON: {exc.msg} at line {exc.lineno}, column {exc.colno}.") from None
+    except UnicodeDecodeError as exc:
+        raise MetadataError(f"{path}: not a UTF-8 text file ({exc.reason} at byte {exc.start}).") from None
+    if isinstance(data, dict) and "action_space" not in data:
+        # The default grid applies only when no file is given: a file without one is a mistake.
+        raise MetadataError(f"{path}: has no 'action_space'. A model_metadata.json names the actions the car "
+                            "may take, e.g. \"action_space\": [{\"steering_angle\": 0, \"speed\": 1.0}, ...] (or a "
+                            "continuous range with \"action_space_type\": \"continuous\"); leave out "
+                            "--model-metadata to train laplab's default grid.")
     return metadata_from_dict(data, str(path))

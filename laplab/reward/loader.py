@@ -11,7 +11,8 @@ step. Each call hands the user function a shallow copy of that list, so appendin
 reversing it never leaks into later steps, and the tuples themselves are immutable.
 
 :func:`laplab.reward.timeout.call_with_timeout` guards the validation step against functions that
-never return; ordinary per-step calls carry no timer.
+never return; during a job :class:`laplab.reward.watchdog.RewardWatchdog` limits every step's calls
+without a timer per call (a :class:`RewardTimeout` it raises becomes a RewardFunctionError here).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from laplab.reward.errors import (
     RewardFunctionError, describe_exception, hint_for_exception, hint_for_syntax, last_user_frame,
     replay_return_line, summarize_params,
 )
+from laplab.reward.watchdog import RewardTimeout
 from laplab.vehicle.params import DEEPRACER
 
 #: Argument names of the 2018 signature, after the optional leading ``self``.
@@ -80,6 +82,8 @@ class RewardFunction:
             value = self.function(*args)
         except (Exception, SystemExit) as exc:
             raise self._raised_error(exc, params) from exc
+        except RewardTimeout as timeout:  # laplab.reward.watchdog stopped a batch of calls that ran too long
+            raise self._timeout_error(timeout, params) from None
         reward, why_invalid = _checked_reward(value)
         if why_invalid:
             raise self._return_error(value, params, why_invalid) from None
@@ -125,6 +129,15 @@ class RewardFunction:
         return self.error_at(f"the function raised {describe_exception(exc)}",
                              entry.tb_lineno if entry is not None else None, params,
                              cause=repr(exc), hint=hint_for_exception(exc, names, params))
+
+    def _timeout_error(self, timeout: RewardTimeout, params: Any) -> RewardFunctionError:
+        problem = (f"one step's calls of the function did not return within {timeout.seconds:g} s of "
+                   f"{timeout.what}")
+        if timeout.busy_line is not None:
+            problem += "; it was stopped while running this line"
+        return self.error_at(problem, timeout.busy_line if timeout.busy_line is not None else self._def_line(),
+                             params, hint="look for a loop that never ends or a call that waits; the limit is "
+                                          "--reward-timeout (seconds of CPU per step's calls)")
 
     def _return_error(self, value: Any, params: Any, why: str) -> RewardFunctionError:
         lineno, fell_off = self._find_return_line(params)

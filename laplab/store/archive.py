@@ -14,9 +14,11 @@ An archive holds a subset of the model folder, at the same paths (see docs/car.m
 
 Import checks every member before anything is written (regular files at the paths above only: no
 absolute names, ``..``, links or devices; sizes and sha256 as the manifest says), extracts into a
-hidden temporary folder beside the models, validates the model there (metadata, hyperparameters,
-laplab.json, reward source, and that the checkpoint loads into the model's network), then renames
-the folder into place: a model appears complete or not at all.
+hidden temporary folder beside the models, checks the files there (JSON, reward source, checkpoint
+index) and runs the caller's validation (:mod:`laplab.train.archive` checks metadata,
+hyperparameters, laplab.json and that the checkpoint loads into the model's network), then renames
+the folder into place: a model appears complete or not at all. This module imports nothing above
+``laplab.store``.
 """
 
 from __future__ import annotations
@@ -31,8 +33,11 @@ import shutil
 import tarfile
 import secrets
 import time
+import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO
 
 from laplab import __version__
 from laplab.store.atomic import atomic_write_with
@@ -73,48 +78,70 @@ def _tar_info(name: str, size: int, mtime: float) -> tarfile.TarInfo:
     return info
 
 
-def export_model_archive(name: str, checkpoint: str = "best", out: str | os.PathLike | None = None) -> Path:
+def export_model_archive(name: str, checkpoint: str = "best", out: str | os.PathLike | None = None,
+                         verify: Callable[[BinaryIO, str], None] | None = None) -> Path:
     """Pack model ``name`` at ``checkpoint`` ('best', 'last' or a file name) into the file ``out``
     (default, or when ``out`` is a folder: ``<name>.tar.gz`` in it / here), written atomically.
-    Returns the archive's path."""
+
+    Every member is read once and packed from those bytes, so a job training the model meanwhile
+    cannot make the manifest disagree with the archive. ``verify(handle, where)`` checks the opened
+    checkpoint before anything is written (it raises on a damaged one). Returns the archive's path."""
     folder = model_folder(name)
     if not folder.exists():
         raise FileNotFoundError(f"no model named {name!r} (looked in {folder.root}).")
     store = CheckpointStore(folder)
-    checkpoint_path = store.resolve(checkpoint)
-    record = next((r for r in (store.best(), store.last()) if r is not None and r.name == checkpoint_path.name), None)
+    checkpoint_name, handle = _open_checkpoint(store, checkpoint)
+    with handle:
+        if verify is not None:
+            verify(handle, str(folder.model_dir / checkpoint_name))
+        handle.seek(0)
+        checkpoint_bytes = handle.read()
+    if not checkpoint_bytes:
+        raise ArchiveError(f"checkpoint {folder.model_dir / checkpoint_name} is empty; nothing was written.")
+    record = next((r for r in (store.best(), store.last()) if r is not None and r.name == checkpoint_name), None)
     now = time.time()
-    records = {"name": checkpoint_path.name, "avg_eval_metric": None if record is None else record.avg_eval_metric,
+    records = {"name": checkpoint_name, "avg_eval_metric": None if record is None else record.avg_eval_metric,
                "time_stamp": now if record is None else record.time_stamp}
-    generated = {"model/deepracer_checkpoints.json": json.dumps(
+    members = {"model/deepracer_checkpoints.json": json.dumps(
         {"best_checkpoint": records, "last_checkpoint": records}, indent=2).encode() + b"\n"}
-    files = {member: folder.root / member for member in _FIXED_MEMBERS + _OPTIONAL_MEMBERS
-             if member not in generated and (folder.root / member).is_file()}
-    missing = [m for m in _FIXED_MEMBERS if m not in files and m not in generated]
+    for member in _FIXED_MEMBERS + _OPTIONAL_MEMBERS:
+        if member not in members:
+            try:
+                members[member] = (folder.root / member).read_bytes()
+            except FileNotFoundError:
+                pass
+    missing = [m for m in _FIXED_MEMBERS if m not in members]
     if missing:
         raise ArchiveError(f"model {name!r} lacks {missing} in {folder.root}; it cannot be exported "
                            "(was it created by laplab train?)")
-    files[f"model/{checkpoint_path.name}"] = checkpoint_path
+    members[f"model/{checkpoint_name}"] = checkpoint_bytes
     manifest = {"format": ARCHIVE_FORMAT, "version": ARCHIVE_VERSION, "name": name,
-                "checkpoint": checkpoint_path.name, "laplab_version": __version__, "exported_at": now,
-                "files": {**{m: {"sha256": _sha256(p), "size": p.stat().st_size} for m, p in files.items()},
-                          **{m: {"sha256": hashlib.sha256(b).hexdigest(), "size": len(b)}
-                             for m, b in generated.items()}}}
-    generated[MANIFEST] = json.dumps(manifest, indent=2).encode() + b"\n"
+                "checkpoint": checkpoint_name, "laplab_version": __version__, "exported_at": now,
+                "files": {m: {"sha256": hashlib.sha256(b).hexdigest(), "size": len(b)} for m, b in members.items()}}
+    manifest_bytes = json.dumps(manifest, indent=2).encode() + b"\n"
     target = Path(out) if out is not None else Path.cwd()
     if target.is_dir():
         target = target / f"{name}.tar.gz"
 
     def write(temporary: Path) -> None:
         with tarfile.open(temporary, "w:gz", format=tarfile.PAX_FORMAT) as tar:
-            for member in [MANIFEST, *sorted(set(files) | set(generated) - {MANIFEST})]:
-                if member in generated:
-                    tar.addfile(_tar_info(member, len(generated[member]), now), io.BytesIO(generated[member]))
-                else:
-                    with open(files[member], "rb") as handle:
-                        tar.addfile(_tar_info(member, files[member].stat().st_size, now), handle)
+            tar.addfile(_tar_info(MANIFEST, len(manifest_bytes), now), io.BytesIO(manifest_bytes))
+            for member in sorted(members):
+                tar.addfile(_tar_info(member, len(members[member]), now), io.BytesIO(members[member]))
 
     return atomic_write_with(target, write)
+
+
+def _open_checkpoint(store: CheckpointStore, which: str) -> tuple[str, BinaryIO]:
+    """Open checkpoint ``which``; re-resolve 'best'/'last' if a training job pruned it meanwhile."""
+    for attempt in range(5):
+        path = store.resolve(which)
+        try:
+            return path.name, open(path, "rb")  # noqa: SIM115 - closed by the caller
+        except FileNotFoundError:
+            if attempt == 4 or which not in ("best", "last"):
+                raise
+    raise AssertionError("unreachable")
 
 
 def _check_members(archive: Path, tar: tarfile.TarFile) -> dict[str, tarfile.TarInfo]:
@@ -169,10 +196,24 @@ def _read_manifest(archive: Path, tar: tarfile.TarFile, members: dict[str, tarfi
     return manifest
 
 
-def import_model_archive(path: str | os.PathLike, name: str | None = None) -> ImportedModel:
+def import_model_archive(path: str | os.PathLike, name: str | None = None,
+                         validate: Callable[[ModelFolder, str, str], None] | None = None) -> ImportedModel:
     """Restore an archive as model ``name`` (default: the exported model's name); see the module
-    docstring for the checks. Refuses a name that is taken."""
-    archive = Path(path)
+    docstring for the checks. ``validate(staging folder, checkpoint name, archive)`` checks the
+    model before it is moved into place (laplab.train.archive passes one that loads the checkpoint).
+    Refuses a name that is taken. A truncated or damaged archive raises :class:`ArchiveError`."""
+    try:
+        return _import(Path(path), name, validate)
+    except (EOFError, zlib.error, tarfile.TarError) as exc:
+        raise ArchiveError(f"{path}: the archive is damaged or truncated ({type(exc).__name__}: {exc}); "
+                           "nothing was imported. Export it again or copy it again.") from None
+    except OSError as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise
+        raise ArchiveError(f"{path}: cannot read the archive ({exc}); nothing was imported.") from None
+
+
+def _import(archive: Path, name: str | None, validate) -> ImportedModel:
     if not archive.is_file():
         raise FileNotFoundError(f"{archive}: no such archive file.")
     try:
@@ -199,7 +240,9 @@ def import_model_archive(path: str | os.PathLike, name: str | None = None) -> Im
                 if _sha256(staging / member) != entry.get("sha256"):
                     raise ArchiveError(f"{archive}: {member} does not match its sha256 in {MANIFEST}; "
                                        "the archive is damaged or was altered.")
-            validate_model_folder(ModelFolder(staging), manifest["checkpoint"], str(archive))
+            check_model_files(ModelFolder(staging), manifest["checkpoint"], str(archive))
+            if validate is not None:
+                validate(ModelFolder(staging), manifest["checkpoint"], str(archive))
             try:
                 os.rename(staging, target.root)
             except OSError as exc:
@@ -210,58 +253,22 @@ def import_model_archive(path: str | os.PathLike, name: str | None = None) -> Im
     return ImportedModel(new_name, target, manifest["checkpoint"])
 
 
-def validate_model_folder(folder: ModelFolder, checkpoint: str, source: str) -> None:
-    """Check that ``folder`` is a usable laplab model whose ``checkpoint`` loads into its network.
-    Errors name ``source`` and the file at fault."""
-    from laplab.agents.hyperparameters import HyperparameterError, from_dict as hyperparameters_from_dict
-    from laplab.env.metadata import MetadataError, metadata_from_dict
-    from laplab.train.config import ConfigError, TrainConfig
-
-    def read(member: str):
+def check_model_files(folder: ModelFolder, checkpoint: str, source: str) -> None:
+    """What the store can check without the layers above it: the JSON files parse, the reward
+    source compiles, and deepracer_checkpoints.json names ``checkpoint``."""
+    for member in ("model/model_metadata.json", "ip/hyperparameters.json", "laplab.json"):
         try:
-            return json.loads((folder.root / member).read_text(encoding="utf-8"))
+            json.loads((folder.root / member).read_text(encoding="utf-8"))
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ArchiveError(f"{source}: {member} is not valid JSON ({exc}).") from None
-
-    try:
-        metadata = metadata_from_dict(read("model/model_metadata.json"), f"{source}: model/model_metadata.json")
-        hyper = hyperparameters_from_dict(read("ip/hyperparameters.json"), f"{source}: ip/hyperparameters.json")
-        config = TrainConfig.from_dict(read("laplab.json"), f"{source}: laplab.json")
-    except (MetadataError, HyperparameterError, ConfigError, TypeError) as exc:
-        raise ArchiveError(str(exc)) from None
-    for what, file_value, config_value in (("model/model_metadata.json", metadata, config.metadata()),
-                                           ("ip/hyperparameters.json", hyper, config.hyper())):
-        if file_value != config_value:
-            raise ArchiveError(f"{source}: {what} differs from the one recorded in laplab.json; the model "
-                               "would not train or evaluate as it was trained.")
     try:
         compile(folder.read_reward_function(), f"{source}: reward_function.py", "exec")
     except (SyntaxError, UnicodeDecodeError, ValueError) as exc:
         raise ArchiveError(f"{source}: reward_function.py does not compile: {exc}") from None
     store = CheckpointStore(folder)
-    if store.resolve("best").name != checkpoint or store.resolve("last").name != checkpoint:
+    try:
+        names = store.resolve("best").name, store.resolve("last").name
+    except (ValueError, FileNotFoundError) as exc:
+        raise ArchiveError(f"{source}: model/deepracer_checkpoints.json: {exc}") from None
+    if names != (checkpoint, checkpoint):
         raise ArchiveError(f"{source}: model/deepracer_checkpoints.json does not name {checkpoint}.")
-    _check_checkpoint_loads(folder.model_dir / checkpoint, config, source)
-
-
-def _check_checkpoint_loads(path: Path, config, source: str) -> None:
-    import torch
-
-    from laplab.track.geometry import TrackError
-    from laplab.track.registry import load_track
-    from laplab.train.trainer import build_learner
-
-    try:
-        load_track(config.track)
-    except TrackError as exc:
-        raise ArchiveError(f"{source}: the model's track {config.track!r} (laplab.json 'track') is not available "
-                           f"here, so its checkpoint cannot be checked: {exc}") from None
-    learner = build_learner(config, config.seed)  # the model's spec alone fixes its networks
-    try:
-        # weights_only: an archive may come from anyone, and a full unpickle can run arbitrary code.
-        learner.load_state_dict(torch.load(path, map_location="cpu", weights_only=True)["learner"])
-    except Exception as exc:  # a truncated or unsafe pickle, a foreign state dict, mismatched shapes ...
-        reason = " ".join(str(exc).split())  # torch's messages span lines; keep one paragraph
-        raise ArchiveError(f"{source}: checkpoint model/{path.name} does not load into the model's network "
-                           f"(sensors {list(config.metadata().sensors)}, {config.metadata().training_algorithm}): "
-                           f"{type(exc).__name__}: {reason[:300]}") from None

@@ -89,17 +89,26 @@ def atomic_write_json(path: str | os.PathLike, obj: Any, indent: int | None = 2)
     return atomic_write_text(path, text + "\n")
 
 
+class CorruptFileError(ValueError):
+    """A file laplab wrote that is damaged (truncated, torn, edited); the message names it."""
+
+
 def read_json(path: str | os.PathLike) -> Any:
-    """Read a JSON file; a missing or malformed file raises an error naming the path."""
+    """Read a JSON file; a missing file raises FileNotFoundError, a malformed one
+    :class:`CorruptFileError`, each naming the path."""
     source = Path(path)
     try:
         text = source.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise FileNotFoundError(f"{str(source)!r} does not exist") from None
+    except UnicodeDecodeError as error:
+        raise CorruptFileError(f"{str(source)!r} is damaged: not UTF-8 text ({error.reason} at byte "
+                               f"{error.start}); restore it or delete it") from None
     try:
         return json.loads(text)
     except json.JSONDecodeError as error:
-        raise ValueError(
-            f"{str(source)!r} is not valid JSON (line {error.lineno}, column {error.colno}: "
-            f"{error.msg}); fix or delete the file"
-        ) from error
+        raise CorruptFileError(
+            f"{str(source)!r} is damaged: not valid JSON (line {error.lineno}, column {error.colno}: "
+            f"{error.msg}), for example cut short by a full disk or a copy that did not finish; restore it "
+            f"or delete it"
+        ) from None

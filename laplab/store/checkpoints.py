@@ -25,7 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from laplab.store.atomic import atomic_write_bytes, atomic_write_json, atomic_write_with, read_json
+from laplab.store.atomic import CorruptFileError, atomic_write_bytes, atomic_write_json, atomic_write_with, read_json
 from laplab.store.layout import ModelFolder
 from laplab.store.metrics import BEST_MODEL_METRICS
 
@@ -104,7 +104,13 @@ class CheckpointStore:
         path = self.folder.deepracer_checkpoints
         if not path.exists():
             return None, None
-        document = read_json(path)
+        try:
+            document = read_json(path)
+        except CorruptFileError as error:
+            available = ", ".join(self.names()) or "none"
+            raise CorruptFileError(f"{error}. It names the model's best and last checkpoints; the checkpoint files "
+                                   f"in {str(self.folder.model_dir)!r} are: {available} (give one by name, e.g. "
+                                   f"--checkpoint {self.names()[-1] if self.names() else 'NAME'})") from None
         records = []
         for key in ("best_checkpoint", "last_checkpoint"):
             entry = document.get(key) if isinstance(document, dict) else None
@@ -115,8 +121,8 @@ class CheckpointStore:
                 records.append(CheckpointRecord(str(entry["name"]), entry["avg_eval_metric"],
                                                 float(entry["time_stamp"]), entry.get("avg_eval_lap_time")))
             except (KeyError, TypeError, ValueError) as error:
-                raise ValueError(f"{str(path)!r}: entry {key!r} must have name, avg_eval_metric and "
-                                 f"time_stamp, got {entry!r}") from error
+                raise CorruptFileError(f"{str(path)!r} is damaged: entry {key!r} must have name, avg_eval_metric "
+                                       f"and time_stamp, got {entry!r}") from error
         return records[0], records[1]
 
     def best(self) -> CheckpointRecord | None:

@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 
 CLOSE_TOLERANCE = 1e-6  # m: first and last rows closer than this close the loop
+MAX_WAYPOINTS = 2000  # DeepRacer's routes have 50-400 rows; 2,000 is one every 5 cm on a 100 m loop
+MIN_ROAD_WIDTH = 0.05  # m between the borders at a waypoint (DeepRacer's tracks: 0.6-1.1 m)
 
 
 class TrackError(ValueError):
@@ -125,22 +127,31 @@ def centerline_normals(centerline: np.ndarray) -> np.ndarray:
 def perpendicular_distance(centerline: np.ndarray, border: np.ndarray, side: float) -> np.ndarray:
     """(N,) distance from each centre point along its normal (``side`` +1 left, -1 right) to ``border``.
 
-    Intersects each normal ray with every border segment (N x M, vectorised). Where a ray misses the
-    border (a kink in an old route), falls back to the distance to the nearest border point.
+    Intersects each normal ray with the border segments it crosses (an R-tree of the segments, so
+    time and memory grow as N log N). Where a ray misses the border (a kink in an old route), falls
+    back to the distance to the nearest border point.
     """
+    import shapely
+
     normals = centerline_normals(centerline) * side
-    a, b = border[:-1], border[1:]
-    seg = b - a                                          # (M, 2)
-    rel = a[None, :, :] - centerline[:, None, :]         # (N, M, 2)
-    denom = normals[:, None, 0] * seg[None, :, 1] - normals[:, None, 1] * seg[None, :, 0]
-    safe = np.where(np.abs(denom) < 1e-12, np.nan, denom)
-    t_ray = (rel[..., 0] * seg[None, :, 1] - rel[..., 1] * seg[None, :, 0]) / safe
-    u_seg = (rel[..., 0] * normals[:, None, 1] - rel[..., 1] * normals[:, None, 0]) / safe
+    tree = _segment_tree(border)
+    nearest = np.linalg.norm(_nearest_points(centerline, border, tree) - centerline, axis=1)
+    # A ray that hits farther than 3x the nearest border point (+5 cm) crossed a fold of the border:
+    # that is not its width, so only the ray's first 3x nearest + 5 cm are searched.
+    reach = 3.0 * nearest + 0.05
+    rays = shapely.linestrings(np.stack([centerline, centerline + normals * reach[:, None]], axis=1))
+    pts, segs = tree.query(rays, predicate="intersects")
+    a, b = border[:-1][segs], border[1:][segs]
+    seg, rel, nrm = b - a, a - centerline[pts], normals[pts]
+    denom = nrm[:, 0] * seg[:, 1] - nrm[:, 1] * seg[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        safe = np.where(np.abs(denom) < 1e-12, np.nan, denom)
+        t_ray = (rel[:, 0] * seg[:, 1] - rel[:, 1] * seg[:, 0]) / safe
+        u_seg = (rel[:, 0] * nrm[:, 1] - rel[:, 1] * nrm[:, 0]) / safe
     hit = (t_ray > 0) & (u_seg >= -1e-9) & (u_seg <= 1 + 1e-9)
-    t = np.where(hit, t_ray, np.inf).min(axis=1)
-    nearest = np.sqrt(_point_segment_sq_distance(centerline, a, b).min(axis=1))
-    # A ray that hits far beyond the nearest border point crossed a fold of the border: not its width.
-    return np.where(np.isfinite(t) & (t < 3.0 * nearest + 0.05), t, nearest)
+    t = np.full(centerline.shape[0], np.inf)
+    np.minimum.at(t, pts[hit], t_ray[hit])
+    return np.where(np.isfinite(t) & (t < reach), t, nearest)
 
 
 def nearest_border_width(centerline: np.ndarray, inner: np.ndarray, outer: np.ndarray) -> np.ndarray:
@@ -150,25 +161,23 @@ def nearest_border_width(centerline: np.ndarray, inner: np.ndarray, outer: np.nd
     return np.linalg.norm(p_out - p_in, axis=1)
 
 
-def _point_segment_sq_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(P, M) squared distances from points (P, 2) to segments a->b (M, 2)."""
-    seg = b - a
-    rel = points[:, None, :] - a[None, :, :]
-    t = np.clip((rel * seg[None]).sum(-1) / np.maximum((seg * seg).sum(-1), 1e-18)[None], 0.0, 1.0)
-    diff = rel - t[..., None] * seg[None]
-    return (diff * diff).sum(-1)
+def _segment_tree(polyline: np.ndarray):
+    """A shapely STRtree of the (M) segments of ``polyline`` (M+1, 2); tree index i = segment i."""
+    import shapely
+    return shapely.STRtree(shapely.linestrings(np.stack([polyline[:-1], polyline[1:]], axis=1)))
 
 
-def _nearest_points(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
-    """(P, 2) nearest point of ``polyline`` (M+1, 2) to each of ``points`` (P, 2)."""
-    a, b = polyline[:-1], polyline[1:]
-    seg = b - a
-    rel = points[:, None, :] - a[None, :, :]
-    t = np.clip((rel * seg[None]).sum(-1) / np.maximum((seg * seg).sum(-1), 1e-18)[None], 0.0, 1.0)
-    diff = rel - t[..., None] * seg[None]
-    best = np.argmin((diff * diff).sum(-1), axis=1)
-    rows = np.arange(points.shape[0])
-    return a[best] + t[rows, best, None] * seg[best]
+def _nearest_points(points: np.ndarray, polyline: np.ndarray, tree=None) -> np.ndarray:
+    """(P, 2) nearest point of ``polyline`` (M+1, 2) to each of ``points`` (P, 2): N log N."""
+    import shapely
+    tree = _segment_tree(polyline) if tree is None else tree
+    found, segments = tree.query_nearest(shapely.points(points), all_matches=False)
+    nearest = np.empty(points.shape[0], dtype=np.int64)
+    nearest[found] = segments
+    a, b = polyline[:-1][nearest], polyline[1:][nearest]
+    seg, rel = b - a, points - a
+    t = np.clip((rel * seg).sum(-1) / np.maximum((seg * seg).sum(-1), 1e-18), 0.0, 1.0)
+    return a + t[:, None] * seg
 
 
 def remove_repeated_points(route: np.ndarray) -> np.ndarray:
@@ -185,8 +194,10 @@ def remove_repeated_points(route: np.ndarray) -> np.ndarray:
 def validate_route(route: object, source: str = "array") -> np.ndarray:
     """Check a DeepRacer route and return it as a C-contiguous float64 ``(N, 6)`` array.
 
-    Raises :class:`TrackError` naming ``source`` and what is wrong: shape, dtype, NaN/Inf, too few
-    points, an open loop, or borders that are not on both sides of the centre line.
+    Raises :class:`TrackError` naming ``source`` and what is wrong: shape, dtype, too many waypoints
+    (:data:`MAX_WAYPOINTS`, checked before anything is copied), NaN/Inf, too few points, an open
+    loop, no width between the borders, a line that crosses itself or another (O(N log N), with the
+    crossing point), or borders that are not on both sides of the centre line.
     """
     array = np.asarray(route)
     if array.ndim != 2 or array.shape[1] != 6:
@@ -195,7 +206,12 @@ def validate_route(route: object, source: str = "array") -> np.ndarray:
             f"[centre x, y | inner x, y | outer x, y] in metres, but this one has shape {array.shape}.")
     if not np.issubdtype(array.dtype, np.number) or np.issubdtype(array.dtype, np.complexfloating):
         raise TrackError(f"{source}: route values must be real numbers (float64), got dtype {array.dtype}.")
-    array = np.ascontiguousarray(array, dtype=np.float64)
+    if array.shape[0] > MAX_WAYPOINTS:
+        raise TrackError(
+            f"{source}: the route has {array.shape[0]:,} waypoints; laplab accepts at most {MAX_WAYPOINTS:,} "
+            f"(DeepRacer's tracks have 50 to 400, one every 5 to 50 cm). Resample it along the centre line, "
+            f"e.g. keep every {-(-array.shape[0] // 1000)}th row, and close it again.")
+    array = np.array(array, dtype=np.float64, order="C")  # a copy: the caller's array (or a read-only file map) is not touched
     bad = ~np.isfinite(array)
     if bad.any():
         row, col = np.argwhere(bad)[0]
@@ -210,6 +226,15 @@ def validate_route(route: object, source: str = "array") -> np.ndarray:
             f"{gap:.4g} m. laplab drives closed tracks only; close it by appending the first row.")
     array[-1] = array[0]
     centre, inner, outer = array[:, 0:2], array[:, 2:4], array[:, 4:6]
+    width = np.hypot(outer[:, 0] - inner[:, 0], outer[:, 1] - inner[:, 1])
+    narrow = np.flatnonzero(width < MIN_ROAD_WIDTH)
+    if narrow.size:
+        row = int(narrow[np.argmin(width[narrow])])
+        raise TrackError(
+            f"{source}: the road has no width at row {row} (the inner and outer borders are {width[row]:.3f} m "
+            f"apart{f', and at {narrow.size - 1} more rows' if narrow.size > 1 else ''}); a track needs a width "
+            f"of at least {MIN_ROAD_WIDTH} m between its borders everywhere (DeepRacer's are 0.6 to 1.1 m wide).")
+    _check_no_crossings(centre, inner, outer, source)
     normals = centerline_normals(centre)[:-1]
     side_inner = np.einsum("ij,ij->i", inner[:-1] - centre[:-1], normals)
     side_outer = np.einsum("ij,ij->i", outer[:-1] - centre[:-1], normals)
@@ -223,6 +248,40 @@ def validate_route(route: object, source: str = "array") -> np.ndarray:
         raise TrackError(
             f"{source}: columns 2:4 lie outside the loop and 4:6 inside: inner and outer borders are swapped.")
     return array
+
+
+def _check_no_crossings(centre: np.ndarray, inner: np.ndarray, outer: np.ndarray, source: str) -> None:
+    """Refuse a centre line or border that crosses itself (a figure-eight) or another one, naming the
+    crossing point. GEOS's noding with a spatial index: O(N log N)."""
+    import shapely
+    from shapely.geometry import LineString, Polygon
+
+    lines = {"centre line": centre, "inner border": inner, "outer border": outer}
+    for name, points in lines.items():
+        line = LineString(points)
+        if not line.is_simple:
+            reason = shapely.is_valid_reason(Polygon(points))
+            where = _point_in(reason) or _point_in(str(shapely.union_all([line]).wkt))
+            raise TrackError(
+                f"{source}: the {name} crosses itself{f' at {where}' if where else ''} (a figure-eight or a "
+                f"loop in the route); laplab drives tracks whose centre line and borders are simple closed "
+                f"loops that never cross.")
+    names = list(lines)
+    for i in range(3):
+        for j in range(i + 1, 3):
+            a, b = LineString(lines[names[i]]), LineString(lines[names[j]])
+            if a.intersects(b):
+                point = a.intersection(b).representative_point()
+                raise TrackError(
+                    f"{source}: the {names[i]} and the {names[j]} cross at ({point.x:.3f}, {point.y:.3f}) m; the "
+                    f"centre line must run between the borders all the way round (are columns swapped in "
+                    f"part of the file?).")
+
+
+def _point_in(text: str) -> str | None:
+    import re
+    match = re.search(r"\[\s*(-?[0-9.e+-]+)\s+(-?[0-9.e+-]+)", text or "")
+    return f"({float(match.group(1)):.3f}, {float(match.group(2)):.3f}) m" if match else None
 
 
 def track_from_route(route: object, name: str, source: str = "array",
@@ -239,12 +298,12 @@ def track_from_route(route: object, name: str, source: str = "array",
 
 
 def load_route_file(path: str | Path, remove_repeats: bool = True, name: str | None = None) -> Track:
-    """Load and validate a DeepRacer ``.npy`` route file."""
+    """Load and validate a DeepRacer ``.npy`` route file (its size is checked before it is read)."""
     path = Path(path)
     if not path.is_file():
         raise TrackError(f"{path}: no such track file.")
     try:
-        array = np.load(path, allow_pickle=False)
+        array = np.load(path, allow_pickle=False, mmap_mode="r")
     except Exception as exc:  # numpy raises several kinds for corrupt files
         raise TrackError(f"{path}: not a readable .npy array ({exc}).") from None
     return track_from_route(array, name or path.stem, source=str(path), remove_repeats=remove_repeats)

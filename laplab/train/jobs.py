@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
+import secrets
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -11,12 +14,15 @@ from laplab.reward.loader import RewardFunction, load_reward_function
 from laplab.reward.validate import validate_reward_function
 from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import ModelFolder, model_folder, validate_model_name
-from laplab.track.geometry import Track
-from laplab.track.registry import load_track
+from laplab.store.lock import ModelBusyError, ModelLock
 from laplab.train.config import TrainConfig
 from laplab.train.errors import JobError
+from laplab.track.geometry import Track
+from laplab.track.registry import load_track
+from laplab.train.archive import check_reward_trusted
+from laplab.train.checkpoint_read import read_checkpoint
 from laplab.train.recorder import ModelFolderRecorder
-from laplab.train.trainer import Trainer, load_checkpoint, load_weights_only
+from laplab.train.trainer import Trainer, load_weights_only
 
 
 def reward_file(config: TrainConfig) -> Path:
@@ -51,15 +57,36 @@ def create_training(name: str, config: TrainConfig, init_weights: dict | None = 
                        f"`laplab train --resume {name}` if its training was interrupted.")
     track = job_track(config)
     reward_fn = load_and_validate_reward(config, track)
-    folder.create()
-    folder.write_model_metadata(config.model_metadata.to_dict())
-    folder.write_hyperparameters(config.hyper().to_dict())
-    folder.write_reward_function(reward_file(config).read_text())
-    folder.write_laplab_config(config.to_dict())
-    trainer = _attach(Trainer(config, reward_fn, track), folder)
-    if init_weights is not None:
-        load_weights_only(trainer.learner, init_weights)
-    trainer.save_initial_checkpoint()
+    # The folder is written beside its final place and renamed into it: a job killed at any moment
+    # leaves a complete model folder or none (an unfinished one is a hidden .create-* folder).
+    folder.root.parent.mkdir(parents=True, exist_ok=True)
+    staging = ModelFolder(folder.root.parent / f".create-{name}-{secrets.token_hex(4)}")
+    try:
+        staging.create()
+        staging.write_model_metadata(config.model_metadata.to_dict())
+        staging.write_hyperparameters(config.hyper().to_dict())
+        staging.write_reward_function(reward_file(config).read_text())
+        staging.write_laplab_config(config.to_dict())
+        lock = take_lock(staging)  # the lock file moves with the folder (same inode)
+        try:
+            os.rename(staging.root, folder.root)  # atomic; fails when the name was taken meanwhile
+        except OSError:
+            lock.release()
+            raise JobError(f"a model named {name!r} was just created at {folder.root} by another job; "
+                           "pick another name.") from None
+    except BaseException:
+        shutil.rmtree(staging.root, ignore_errors=True)
+        raise
+    lock.root = folder.root
+    try:
+        trainer = _attach(Trainer(config, reward_fn, track), folder)
+        if init_weights is not None:
+            load_weights_only(trainer.learner, init_weights)
+        trainer.save_initial_checkpoint()
+    except BaseException:
+        lock.release()
+        raise
+    trainer.lock = lock  # held for the job's lifetime (released by the OS when the process ends)
     return trainer
 
 
@@ -70,29 +97,55 @@ def _attach(trainer: Trainer, folder: ModelFolder) -> Trainer:
     return trainer
 
 
-def resume_training(name: str, max_time_s: float | None = None, max_episodes: int | None = None) -> Trainer:
+def take_lock(folder, what: str = "trained") -> ModelLock:
+    """The model folder's job lock, or :class:`JobError` naming the job that holds it."""
+    try:
+        return ModelLock(folder.root, what).acquire()
+    except ModelBusyError as exc:
+        raise JobError(str(exc)) from None
+
+
+def resume_training(name: str, max_time_s: float | None = None, max_episodes: int | None = None,
+                    trust_reward: bool = False) -> Trainer:
     """A Trainer that continues ``name`` from its last checkpoint (iteration count continues).
 
     ``max_time_s`` (a new budget for this session) and ``max_episodes`` (a new total) override the
-    stored stop conditions."""
+    stored stop conditions. An imported model's reward function runs only once trusted
+    (``trust_reward``, recorded: see :mod:`laplab.train.archive`)."""
     folder = model_folder(name)
     if not folder.exists():
         raise JobError(f"no model named {name!r} to resume (looked in {folder.root}).")
-    config = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
-    if max_time_s is not None:
-        config = replace(config, max_time_s=max_time_s)
-    if max_episodes is not None:
-        config = replace(config, max_episodes=max_episodes)
-    track = job_track(config)
-    reward_fn = load_and_validate_reward(config, track, folder.reward_function)
-    state = load_checkpoint(CheckpointStore(folder).resolve("last"))
-    if folder.error_file.exists():
-        folder.error_file.unlink()
-    return _attach(Trainer(config, reward_fn, track, resume_from=state), folder)
+    lock = take_lock(folder)
+    try:
+        check_reward_trusted(folder, trust_reward, f"laplab train --resume {name}")
+        config = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
+        if max_time_s is not None:
+            config = replace(config, max_time_s=max_time_s)
+        if max_episodes is not None:
+            config = replace(config, max_episodes=max_episodes)
+        track = job_track(config)
+        reward_fn = load_and_validate_reward(config, track, folder.reward_function)
+        if CheckpointStore(folder).names():
+            _, state = read_checkpoint(folder, "last")
+        else:  # killed before its first checkpoint was written: start again from scratch
+            state = None
+        if folder.error_file.exists():
+            folder.error_file.unlink()
+        trainer = _attach(Trainer(config, reward_fn, track, resume_from=state), folder)
+        if state is None:
+            trainer.save_initial_checkpoint()
+    except BaseException:
+        lock.release()
+        raise
+    trainer.lock = lock
+    return trainer
 
 
-def clone_config(source: str, overrides: dict) -> tuple[TrainConfig, dict]:
+def clone_config(source: str, overrides: dict, trust_reward: bool = False) -> tuple[TrainConfig, dict]:
     """The config of a clone of ``source`` with ``overrides`` applied, and the weights to start from.
+
+    Without a new ``reward_path`` the clone runs the source's reward function, which must be trusted
+    if the source was imported (``trust_reward`` records it).
 
     The action space and the sensors cannot change (DeepRacer's rule): a different
     model_metadata.json is refused with a message naming what differs.
@@ -102,6 +155,7 @@ def clone_config(source: str, overrides: dict) -> tuple[TrainConfig, dict]:
         raise JobError(f"no model named {source!r} to clone (looked in {folder.root}).")
     base = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
     if overrides.get("reward_path") is None:
+        check_reward_trusted(folder, trust_reward, f"laplab clone {source} NEW")
         overrides = {**overrides, "reward_path": str(folder.reward_function)}
     new_meta = overrides.get("model_metadata")
     if new_meta is not None:
@@ -113,7 +167,7 @@ def clone_config(source: str, overrides: dict) -> tuple[TrainConfig, dict]:
                 raise JobError(f"a clone keeps its source's {what}: {source!r} has {_show(a)}, the new "
                                f"model_metadata.json asks for {_show(b)}.")
     config = replace(base, **{k: v for k, v in overrides.items() if v is not None})
-    state = load_checkpoint(CheckpointStore(folder).resolve("best"))
+    _, state = read_checkpoint(folder, "best")
     return config, state["learner"]
 
 

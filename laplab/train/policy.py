@@ -11,10 +11,11 @@ import numpy as np
 from laplab.agents.learner import Learner
 from laplab.env.metadata import ModelMetadata
 from laplab.env.spec import ModelSpec
-from laplab.store.checkpoints import CheckpointStore
+from laplab.store.atomic import CorruptFileError
 from laplab.store.layout import ModelFolder, model_folder
+from laplab.train.checkpoint_read import read_checkpoint
 from laplab.train.config import TrainConfig
-from laplab.train.trainer import build_learner, load_checkpoint
+from laplab.train.trainer import build_learner
 
 
 @dataclass
@@ -57,9 +58,12 @@ def load_model_policy(name: str, checkpoint: str = "best", seed: int = 0) -> Mod
     if not folder.exists():
         raise FileNotFoundError(f"no model named {name!r} (looked in {folder.root}).")
     config = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
-    path = CheckpointStore(folder).resolve(checkpoint)
-    state = load_checkpoint(path)
+    checkpoint_name, state = read_checkpoint(folder, checkpoint)
     # Driving, evaluation and export run in float32 whatever the training precision was.
     learner = build_learner(config, seed, precision="float32")
-    learner.load_state_dict(state["learner"])
-    return ModelPolicy(name, folder, config, config.spec, path.name, learner)
+    try:
+        learner.load_state_dict(state["learner"])
+    except (KeyError, ValueError, RuntimeError, TypeError) as exc:
+        raise CorruptFileError(f"checkpoint {str(folder.model_dir / checkpoint_name)!r} does not fit the model's "
+                               f"network ({type(exc).__name__}: {' '.join(str(exc).split())[:200]}).") from None
+    return ModelPolicy(name, folder, config, config.spec, checkpoint_name, learner)

@@ -1,0 +1,1 @@
+"""Jobs: running training and evaluation under a supervisor (supervisor.py, sandbox.py)."""
