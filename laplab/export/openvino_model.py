@@ -3,8 +3,9 @@ the car's model optimizer passes, then run in OpenVINO's runtime on the CPU.
 
 The car (aws-deepracer-model-optimizer-pkg) calls ``mo_tf.py --input_model model.pb --input
 <names> --input_shape [1,120,160,1],...  --data_type FP16``; here ``openvino.convert_model`` (OVC)
-does the same conversion in-process. OVC names a TensorFlow input by its tensor (``NAME:0``) where
-the 2021 model optimizer took the node name: both are tried. Precision stays FP32 unless
+does the same conversion in-process, with the same input nodes and shapes. OVC names a TensorFlow
+input by its tensor (``NAME:0``) where the 2021 model optimizer took the node name ``NAME``; the
+tensor name is passed first, the node name if OVC does not know the former. Precision stays FP32 unless
 ``fp16=True`` (the car's ``--data_type FP16`` compresses the weights to half precision).
 """
 
@@ -67,12 +68,13 @@ class OpenVinoPolicy:
 
     @staticmethod
     def _convert(ov, path: str, inputs: Sequence[OptimizerInput]):
+        # OVC names a TensorFlow input by its tensor (NODE:0); the 2021 optimizer took the node name
         try:
-            return ov.convert_model(path, input=[(spec.name, list(spec.shape)) for spec in inputs])
-        except Exception as exc:  # OVC wants the tensor name; the 2021 optimizer took the node name
+            return ov.convert_model(path, input=[(f"{spec.name}:0", list(spec.shape)) for spec in inputs])
+        except Exception as exc:
             if "not found among model inputs" not in str(exc):
                 raise
-            return ov.convert_model(path, input=[(f"{spec.name}:0", list(spec.shape)) for spec in inputs])
+            return ov.convert_model(path, input=[(spec.name, list(spec.shape)) for spec in inputs])
 
     def _port_name(self, name: str) -> str:
         for port in self.compiled.inputs:

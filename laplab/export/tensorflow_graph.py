@@ -17,7 +17,7 @@ Built with ``tf.compat.v1`` ops on constants only (nothing to freeze); needs ``t
 
 from __future__ import annotations
 
-from typing import Any, Iterable, Mapping
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -139,13 +139,14 @@ class FrozenGraph:
         return self.session.run(self.output, {self.graph.get_tensor_by_name(f"{k}:0"): v for k, v in feed.items()})
 
 
-def graph_feed(layers: PolicyLayers, observations: Any, names: Iterable[str] | None = None) -> dict[str, np.ndarray]:
+def graph_feed(layers: PolicyLayers, observations: Any, names: Mapping[str, str] | None = None) -> dict[str, np.ndarray]:
     """laplab observations (numpy, channels-first cameras; a dict by sensor for several sensors) ->
-    the graph's feed: channels-last float32 grey levels 0-255 for cameras (a float [0, 1] camera
-    space is multiplied by 255), flattened float32 vectors for the others."""
-    names = list(names) if names is not None else [input_node_name(b.sensor, layers.algorithm) for b in layers.branches]
+    the graph's feed, keyed by input node (DeepRacer's, or ``names[sensor]``): channels-last float32
+    grey levels 0-255 for cameras (a float [0, 1] camera space is multiplied by 255), flattened
+    float32 vectors for the others."""
     feed = {}
-    for name, branch in zip(names, layers.branches):
+    for branch in layers.branches:
+        name = (names or {}).get(branch.sensor) or input_node_name(branch.sensor, layers.algorithm)
         value = np.asarray(observations[branch.sensor] if isinstance(observations, Mapping) else observations)
         if branch.is_camera:
             # uint8 frames are grey levels already; a float camera space the network scales by 1/255
