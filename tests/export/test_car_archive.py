@@ -36,25 +36,29 @@ CAR_SENSOR_KEYS = {"observation", "LIDAR", "SECTOR_LIDAR", "LEFT_CAMERA", "FRONT
 CAR_LIDAR_SECTORS = {"LIDAR": 64, "SECTOR_LIDAR": 8}
 
 
-def train_tiny(name: str, **meta) -> None:
+def train_tiny(name: str, train: bool = True, **meta) -> None:
+    """A model folder; ``train``: one tiny iteration, else the untrained checkpoint 0 alone."""
     config = TrainConfig()
     config = replace(config, hyperparameters={**config.hyper().to_dict(), **TINY_HP},
-                     model_metadata={**ModelMetadata().to_dict(), **meta}, max_time_s=60, max_episodes=2)
-    create_training(name, config).run()
+                     model_metadata={**ModelMetadata().to_dict(), **meta}, max_time_s=60, max_episodes=2,
+                     eval_episodes=1)
+    trainer = create_training(name, config)
+    if train:
+        trainer.run()
 
 
 @pytest.fixture(scope="module")
 def home(tmp_path_factory):
-    """$LAPLAB_HOME with 'cam' (front camera, discrete PPO), 'cam-lidar-sac' (camera + sector lidar,
-    SAC) and 'state' (laplab's STATE sensor), each trained for one tiny iteration."""
+    """$LAPLAB_HOME with 'cam' (front camera, discrete PPO, trained for one tiny iteration),
+    'cam-lidar-sac' (camera + sector lidar, SAC) and 'state' (laplab's STATE sensor), untrained."""
     with pytest.MonkeyPatch.context() as patch:
         root = tmp_path_factory.mktemp("home")
         patch.setenv("LAPLAB_HOME", str(root))
         train_tiny("cam", sensor=["FRONT_FACING_CAMERA"])
-        train_tiny("cam-lidar-sac", sensor=["FRONT_FACING_CAMERA", "SECTOR_LIDAR"], training_algorithm="sac",
+        train_tiny("cam-lidar-sac", False, sensor=["FRONT_FACING_CAMERA", "SECTOR_LIDAR"], training_algorithm="sac",
                    action_space_type="continuous",
                    action_space={"steering_angle": {"low": -30.0, "high": 30.0}, "speed": {"low": 0.5, "high": 3.0}})
-        train_tiny("state")
+        train_tiny("state", False)
         yield root
 
 
