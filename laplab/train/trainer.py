@@ -25,6 +25,7 @@ from laplab.sim.state import EpisodeParams
 from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import ModelFolder
 from laplab.store.metrics import TrainingMetricsWriter
+from laplab.store.robomaker_log import RobomakerLogWriter, robomaker_log_path
 from laplab.store.simtrace import SimtraceWriter
 from laplab.train.collect import CollectionAborted, EpisodeBatch, collect_episodes
 from laplab.train.config import TrainConfig
@@ -141,6 +142,9 @@ class Trainer:
             self.best_lap = resume_from.get("best_lap_time")
             self._drop_records_after_checkpoint()
         self.metrics = TrainingMetricsWriter(folder.training_metrics)
+        # robomaker-format log for deepracer-utils / deepracer-log-guru (laplab/store/robomaker_log.py)
+        self.robomaker_log = RobomakerLogWriter(robomaker_log_path(folder.root), self.hp.to_dict(),
+                                                self.metadata.to_dict(), str(config.track))
         self._iteration_rows = self._read_iteration_log()
         # Continue the round-robin schedule where the job stopped.
         self.sim._episodes_done[:] = self.episodes
@@ -207,12 +211,14 @@ class Trainer:
                                 self.metadata.action_space, self._policy(True), keep_observations=False,
                                 ndist=starts)
 
-    def _write_iteration(self, batch: EpisodeBatch, evaluation: EpisodeBatch) -> None:
+    def _write_iteration(self, batch: EpisodeBatch, evaluation: EpisodeBatch, losses: dict | None = None) -> None:
         trace = dict(batch.trace)
         trace["episode"] = trace["episode"] + self.episodes
         # deepracer-for-cloud numbers simtrace files from 0: iteration k (1-based) -> (k-1)-iteration.csv
         with SimtraceWriter(self.folder.training_simtrace(self.iteration - 1), fsync=False) as writer:
             writer.write_rows(trace)
+        self.robomaker_log.write_iteration(self.iteration - 1, trace, batch, evaluation, self.episodes,
+                                           self.env_steps - batch.env_steps, losses, self.hp.lr)
         for append, b in ((self.metrics.append_training, batch), (self.metrics.append_evaluation, evaluation)):
             append(reward_score=b.total_reward, start_time=np.zeros(len(b.status)), metric_time=b.duration,
                    completion_percentage=b.progress, episode_status=b.status_names())
@@ -287,7 +293,7 @@ class Trainer:
                 error, reason = str(exc), "reward_error"
                 self.folder.write_error(error)
                 break
-            self._write_iteration(batch, evaluation)
+            self._write_iteration(batch, evaluation, losses)
             self.episodes += len(batch.status)
             eval_progress = float(evaluation.progress.mean())
             laps = np.concatenate([batch.lap_time, evaluation.lap_time])
