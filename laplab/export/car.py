@@ -16,7 +16,6 @@ import tarfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -121,7 +120,3 @@ def export_car(name: str, checkpoint: str = "best", out: str | Path | None = Non
     graph = build_car_graph(name, checkpoint)
     return write_car_archive(graph, out), graph
 
-
-def describe(graph: CarGraph) -> dict[str, Any]:
-    """What the export wrote, for the command's summary."""
-    return {"checkpoint": graph.checkpoint, "bytes": len(graph.data), "parity_error": graph.parity_error}
