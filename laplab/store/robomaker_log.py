@@ -6,9 +6,11 @@ deepracer-utils (``SimulationLogsIO.load_data`` + ``convert_to_pandas``, and
 deepracer-analysis notebooks read it. laplab writes the lines those readers parse, in the simapp's
 and rl_coach's formats:
 
-- header: `` * /WORLD_NAME: <track>`` (roslaunch's parameter dump), ``Using the following
-  hyper-parameters`` followed by hyperparameters.json, ``Loaded action space from file: [...]``
-  (Python repr, as the simapp logs it), ``Sensor list [...], network ..., simapp_version ...``;
+- header: `` * /JOB_TYPE``, `` * /RACE_TYPE``, `` * /WORLD_NAME: <track>`` (roslaunch's parameter
+  dump), ``Using the following hyper-parameters`` followed by hyperparameters.json (indent 2, one
+  key a line, as log-guru reads it), ``Loaded action space from file: [...]`` (Python repr, as the
+  simapp logs it), ``Sensor list [...], network ..., simapp_version ..., training_algorithm ...,
+  action_space_type ...`` (log-guru takes a continuous action space from the last);
 - one ``SIM_TRACE_LOG:`` line per step, the 19 simtrace columns in the simapp's order
   (``markov/metrics/s3_metrics.py``): episode, steps, X, Y, yaw, steer, throttle, action, reward,
   done, all_wheels_on_track, progress, closest_waypoint, track_len, tstamp, episode_status,
@@ -53,12 +55,15 @@ def header_lines(hyperparameters: Mapping[str, Any], metadata: Mapping[str, Any]
     world, sensors and network from."""
     sensors = list(metadata.get("sensor", []))
     network = metadata.get("neural_network", "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW")
+    algorithm = metadata.get("training_algorithm", "clipped_ppo")
+    kind = metadata.get("action_space_type", "discrete")
     return "".join([
-        f" * /WORLD_NAME: {track}\n",
+        f" * /JOB_TYPE: TRAINING\n * /RACE_TYPE: TIME_TRIAL\n * /WORLD_NAME: {track}\n",
         "Using the following hyper-parameters\n",
-        json.dumps(dict(hyperparameters), indent=2, sort_keys=True) + "\n",
+        json.dumps(dict(hyperparameters), indent=2, sort_keys=True) + "\n",  # log-guru reads '  "key": value,'
         f"Loaded action space from file: {metadata.get('action_space')!r}\n",
-        f"Sensor list {sensors!r}, network {network}, simapp_version {SIMAPP_VERSION}\n",
+        f"Sensor list {sensors!r}, network {network}, simapp_version {SIMAPP_VERSION}, "
+        f"training_algorithm {algorithm}, action_space_type {kind}\n",
     ])
 
 

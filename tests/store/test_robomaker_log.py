@@ -117,6 +117,8 @@ def test_header_and_lines_are_pure_functions(tmp_path):
                                                               "action_space": [{"steering_angle": 0, "speed": 1}]},
                           "reInvent2019_track")
     assert "Sensor list ['LIDAR', 'FRONT_FACING_CAMERA'], network DEEP_CONVOLUTIONAL_NETWORK, simapp_version" in header
+    assert "training_algorithm clipped_ppo, action_space_type discrete\n" in header
+    assert ' * /WORLD_NAME: reInvent2019_track\n' in header and '\n  "batch_size": 64,\n' in header
     assert json.loads(header.split("hyper-parameters\n")[1].split("Loaded")[0]) == {"lr": 0.0003, "batch_size": 64}
     assert episode_lines("Training", 5, np.array([1.234]), np.array([10]), 100, 1) == \
         "Training> Name=main_level/agent, Worker=0, Episode=5, Total reward=1.23, Steps=110, Training iteration=1\n"
