@@ -1,4 +1,5 @@
-"""``laplab export`` (a model as a ``.tar.gz`` archive or an ONNX policy for the car) and ``laplab import``."""
+"""``laplab export`` (a model as a ``.tar.gz`` archive, an ONNX policy, the physical car's TensorFlow
+tar.gz or the DeepRacer console's import folder) and ``laplab import``."""
 
 from __future__ import annotations
 
@@ -14,16 +15,19 @@ PARITY_TOLERANCE = 1e-4  # max |ONNX - torch| accepted by the export's self-chec
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     export = subparsers.add_parser(
-        "export", help="export a model: archive (tar.gz) or ONNX policy for the car",
+        "export", help="export a model: archive (tar.gz), ONNX policy, the car's model.pb tar.gz, console folder",
         description="Write model MODEL as a .tar.gz archive that `laplab import` restores (weights of one "
                     "checkpoint, model_metadata.json, hyperparameters, reward function, laplab.json, metrics), "
-                    "or its policy as an ONNX graph plus model_metadata.json for the physical car "
-                    "(laplab.runtime.OnnxPolicy runs it). See docs/car.md.")
+                    "its policy as an ONNX graph plus model_metadata.json (laplab.runtime.OnnxPolicy runs it), "
+                    "the physical DeepRacer car's tar.gz (TensorFlow model.pb with DeepRacer's node names + "
+                    "model_metadata.json; --format car) or the DeepRacer console's import layout "
+                    "(--format console). car and console need `pip install 'laplab[deepracer]'`. See docs/car.md.")
     export.add_argument("model", metavar="MODEL", help="name of the model")
-    export.add_argument("--format", choices=("tar", "onnx"), default="tar", help="what to write (default: tar)")
+    export.add_argument("--format", choices=("tar", "onnx", "car", "console"), default="tar", help="what to write (default: tar)")
     export.add_argument("--checkpoint", default="best", help="'best' (default), 'last' or a checkpoint file name")
-    export.add_argument("--out", type=Path, help="tar: the archive file (default ./MODEL.tar.gz); "
-                                                 "onnx: the folder (default ./MODEL-onnx)")
+    export.add_argument("--out", type=Path, help="tar, car: the archive file or a folder for it (default "
+                                                 "./MODEL.tar.gz); onnx: the folder (default ./MODEL-onnx); "
+                                                 "console: a new or empty folder (default ./MODEL-console)")
     export.set_defaults(func=export_command)
 
     imp = subparsers.add_parser(
@@ -73,9 +77,35 @@ def export_model_onnx(name: str, checkpoint: str = "best", out_dir: str | Path |
     return OnnxExport(onnx_path, metadata_path, error)
 
 
+def export_deepracer(args: argparse.Namespace) -> int:
+    """--format car / console (laplab.export; TensorFlow needed)."""
+    try:
+        from laplab.export.car import CarExportError, export_car
+        from laplab.export.console import export_console
+        import tensorflow  # noqa: F401  (fail early, with the install line)
+    except ImportError as exc:
+        raise UserError(f"--format {args.format} needs TensorFlow ({exc}); install it with "
+                        "`pip install 'laplab[deepracer]'` (tensorflow-cpu, openvino).") from None
+    try:
+        if args.format == "car":
+            path, graph = export_car(args.model, args.checkpoint, args.out)
+            print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB: agent/model.pb from {graph.checkpoint}, "
+                  f"model_metadata.json; max |TensorFlow - torch| = {graph.parity_error:.1e}). Upload it on the "
+                  "car's device console (Models > Upload).")
+        else:
+            result = export_console(args.model, args.checkpoint, args.out)
+            print(f"wrote {len(result.files)} files into {result.folder} (model/model_*.pb from "
+                  f"{result.graph.checkpoint}; max |TensorFlow - torch| = {result.graph.parity_error:.1e})")
+    except (CarExportError, FileNotFoundError) as exc:
+        raise UserError(str(exc)) from None
+    return 0
+
+
 def export_command(args: argparse.Namespace) -> int:
     from laplab.store.archive import ArchiveError
     from laplab.train.archive import export_model_archive
+    if args.format in ("car", "console"):
+        return export_deepracer(args)
     if args.format == "onnx":
         result = export_model_onnx(args.model, args.checkpoint, args.out)
         check = ("" if result.parity_error is None

@@ -21,7 +21,7 @@ from laplab.track.geometry import Track
 from laplab.track.registry import load_track
 from laplab.train.archive import check_reward_trusted
 from laplab.train.checkpoint_read import read_checkpoint
-from laplab.train.recorder import ModelFolderRecorder
+from laplab.train.recorder import ModelFolderRecorder, RobomakerLogRecorder
 from laplab.train.trainer import Trainer, load_weights_only
 
 
@@ -94,6 +94,7 @@ def _attach(trainer: Trainer, folder: ModelFolder) -> Trainer:
     """Subscribe the model folder's recorder (it writes what the trainer reports)."""
     trainer.folder = folder
     trainer.subscribe(ModelFolderRecorder(folder, trainer.iteration, trainer.episodes))
+    trainer.subscribe(RobomakerLogRecorder(folder, trainer.config))
     return trainer
 
 

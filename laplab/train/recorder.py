@@ -1,7 +1,8 @@
 """The listener that keeps a training job in its model folder (deepracer-for-cloud's layout).
 
 It writes what deepracer-utils reads (``training-simtrace/<k>-iteration.csv``, ``TrainingMetrics.json``,
-checkpoints with ``deepracer_checkpoints.json``), laplab's per-iteration log and ``error.txt``.
+checkpoints with ``deepracer_checkpoints.json``), laplab's per-iteration log and ``error.txt``;
+:class:`RobomakerLogRecorder` writes the robomaker-format log the community's log tools parse.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from laplab.store.atomic import atomic_write_json, read_json
 from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import ModelFolder
 from laplab.store.metrics import TrainingMetricsWriter
+from laplab.store.robomaker_log import RobomakerLogWriter, robomaker_log_path
 from laplab.store.simtrace import SimtraceWriter
 from laplab.train.events import CheckpointReady, IterationEpisodes, IterationReport
 
@@ -75,3 +77,28 @@ class ModelFolderRecorder:
 
     def on_error(self, message: str) -> None:
         self.folder.write_error(message)
+
+
+class RobomakerLogRecorder:
+    """Writes ``logs/training/<time>-robomaker.log`` (one per job run) for deepracer-utils'
+    ``load_robomaker_logs`` and deepracer-log-guru: an iteration's lines are written when its report
+    (with the losses of the policy update) arrives."""
+
+    def __init__(self, folder: ModelFolder, config):
+        hyperparameters = config.hyper()
+        self.learning_rate = hyperparameters.lr
+        self.writer = RobomakerLogWriter(robomaker_log_path(folder.root), hyperparameters.to_dict(),
+                                         config.model_metadata.to_dict(), str(config.track))
+        self._episodes: IterationEpisodes | None = None
+
+    def on_episodes(self, episodes: IterationEpisodes) -> None:
+        self._episodes = episodes
+
+    def on_iteration(self, report: IterationReport) -> None:
+        episodes, self._episodes = self._episodes, None
+        if episodes is None or episodes.iteration != report.iteration:
+            return
+        steps_before = report.env_steps - episodes.training.env_steps
+        self.writer.write_iteration(episodes.iteration - 1, episodes.training_trace(), episodes.training,
+                                    episodes.evaluation, episodes.first_episode, steps_before, report.losses,
+                                    self.learning_rate)

@@ -1,0 +1,160 @@
+"""A laplab policy network as a plain numpy description of its layers (what the TF graph is built from).
+
+This is the thin adapter between laplab's torch networks (``laplab.agents.networks``: ``ActorCritic``
+for PPO, ``SquashedGaussianActor`` for SAC) and the exporters: they only see ``PolicyLayers``, so a
+change of the learner classes touches this module alone. Weights are copied out as float32 numpy
+arrays in TensorFlow's layouts (conv kernels ``(kh, kw, in, out)``, dense kernels ``(in, out)``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+CAR_CAMERAS = ("FRONT_FACING_CAMERA", "LEFT_CAMERA", "STEREO_CAMERAS")
+
+
+@dataclass(frozen=True)
+class Conv:
+    """A 'valid' 2-D convolution followed by ``activation``: kernel (kh, kw, in, out), bias (out,)."""
+
+    kernel: np.ndarray
+    bias: np.ndarray
+    stride: int
+    activation: str = "relu"
+
+
+@dataclass(frozen=True)
+class Dense:
+    """``activation(x @ kernel + bias)``: kernel (in, out), bias (out,); activation relu, tanh or none."""
+
+    kernel: np.ndarray
+    bias: np.ndarray
+    activation: str
+
+
+@dataclass(frozen=True)
+class SensorBranch:
+    """One sensor's input embedder. ``shape``: one sample as the graph takes it (camera ``(H, W, C)``
+    channels-last grey levels 0-255; vector ``(n,)``). Cameras are multiplied by ``scale`` (1/255
+    for laplab's uint8 frames), run through ``convs``, transposed back to laplab's channels-first
+    order and flattened, then ``dense``."""
+
+    sensor: str
+    shape: tuple[int, ...]
+    is_camera: bool
+    scale: float
+    convs: tuple[Conv, ...]
+    dense: tuple[Dense, ...]
+
+
+@dataclass(frozen=True)
+class PolicyLayers:
+    """The greedy policy: branches (concatenated in this order), middleware, head, output.
+
+    ``output``: ``softmax`` (PPO discrete: action probabilities), ``identity`` (PPO continuous: the
+    Gaussian mean, unclipped) or ``tanh`` (SAC: tanh of the mean). ``algorithm``: clipped_ppo or sac.
+    """
+
+    algorithm: str
+    branches: tuple[SensorBranch, ...]
+    middleware: tuple[Dense, ...]
+    head: Dense
+    output: str
+
+    @property
+    def action_size(self) -> int:
+        return int(self.head.kernel.shape[1])
+
+
+def _array(tensor: Any) -> np.ndarray:
+    return np.ascontiguousarray(tensor.detach().cpu().float().numpy(), dtype=np.float32)
+
+
+def _dense_layers(sequential: Any) -> tuple[Dense, ...]:
+    """``nn.Sequential`` of (Linear, activation) pairs -> Dense layers."""
+    from torch import nn
+
+    layers: list[Dense] = []
+    for module in sequential:
+        if isinstance(module, nn.Linear):
+            layers.append(Dense(_array(module.weight).T.copy(), _array(module.bias), "none"))
+        elif isinstance(module, (nn.ReLU, nn.Tanh)):
+            last = layers[-1]
+            layers[-1] = Dense(last.kernel, last.bias, "relu" if isinstance(module, nn.ReLU) else "tanh")
+        else:
+            raise TypeError(f"cannot export layer {type(module).__name__} of a dense stack")
+    return tuple(layers)
+
+
+def _branch(sensor: str, embedder: Any, space: Any) -> SensorBranch:
+    from torch import nn
+
+    from laplab.agents.networks import CameraEmbedder
+
+    shape = tuple(int(s) for s in space.shape)
+    if isinstance(embedder, CameraEmbedder):
+        convs = []
+        for module in embedder.convolutions:
+            if isinstance(module, nn.Conv2d):
+                convs.append(Conv(_array(module.weight).transpose(2, 3, 1, 0).copy(), _array(module.bias),
+                                  int(module.stride[0])))
+        # a float camera space in [0, 1]: the graph still takes 0-255 grey levels (as the car feeds)
+        unit_range = space.dtype != np.uint8 and float(np.max(space.high)) <= 1.0
+        scale = float(np.float32(embedder.scale) * (np.float32(1.0 / 255.0) if unit_range else np.float32(1.0)))
+        return SensorBranch(sensor, (shape[1], shape[2], shape[0]), True, scale, tuple(convs),
+                            _dense_layers(embedder.dense))
+    return SensorBranch(sensor, (int(np.prod(shape)),), False, 1.0, (), _dense_layers(embedder.dense))
+
+
+def policy_layers(network: Any, observation_space: Any, sensors: Sequence[str]) -> PolicyLayers:
+    """The layers of a laplab PPO ``ActorCritic`` or SAC ``SquashedGaussianActor`` trained on
+    ``observation_space`` (a Box for one sensor, a Dict keyed by sensor names); ``sensors`` is
+    model_metadata.json's sensor list (it names the single sensor of a Box space)."""
+    import gymnasium as gym
+
+    from laplab.agents.networks import ActorCritic, SquashedGaussianActor
+
+    if isinstance(network, ActorCritic):
+        trunk, head_module, algorithm = network.policy_trunk, network.policy_head, "clipped_ppo"
+        output = "softmax" if network.action_spec.discrete else "identity"
+    elif isinstance(network, SquashedGaussianActor):
+        trunk, head_module, algorithm, output = network.trunk, network.mean, "sac", "tanh"
+    else:
+        raise TypeError(f"expected a PPO ActorCritic or a SAC SquashedGaussianActor, got {type(network).__name__}")
+    if isinstance(observation_space, gym.spaces.Dict):
+        spaces = dict(observation_space.spaces)
+        missing = [name for name in spaces if name not in sensors]
+        if missing:
+            raise ValueError(f"observation keys {missing} are not among the model's sensors {list(sensors)}")
+        keys = {name: name for name in spaces}
+    else:
+        if len(sensors) != 1:
+            raise ValueError(f"a Box observation space belongs to exactly one sensor, got sensors {list(sensors)}")
+        spaces, keys = {sensors[0]: observation_space}, {sensors[0]: trunk.sensor_names[0]}
+    # laplab concatenates the embedders sorted by their key (sensor name; 'observation' for a Box)
+    order = sorted(spaces, key=lambda name: keys[name])
+    branches = tuple(_branch(name, trunk.sensors[keys[name]], spaces[name]) for name in order)
+    head = Dense(_array(head_module.weight).T.copy(), _array(head_module.bias), "none")
+    return PolicyLayers(algorithm, branches, _dense_layers(trunk.middleware), head, output)
+
+
+def reference_output(network: Any, observations: Any, raw: bool = True) -> np.ndarray:
+    """What the graph must reproduce, through the network's own torch forward, for laplab
+    observations (numpy, channels-first cameras): PPO discrete probabilities (B, A); PPO continuous
+    the Gaussian mean (B, 2) (``raw``; else clipped to [-1, 1] as laplab drives); SAC tanh(mean)."""
+    import torch
+
+    from laplab.agents.networks import SquashedGaussianActor, observation_to_tensor
+
+    tensors = observation_to_tensor(observations, "cpu")
+    with torch.no_grad():
+        if isinstance(network, SquashedGaussianActor):
+            return network(tensors, deterministic=True)[0].numpy()
+        distribution, _ = network(tensors)
+        if network.action_spec.discrete:
+            return distribution.probs.numpy()
+        mean = distribution.mean
+        return (mean if raw else mean.clamp(-1.0, 1.0)).numpy()
