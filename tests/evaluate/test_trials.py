@@ -210,7 +210,9 @@ def test_continuous_laps_run_on_from_the_line(wide_track):
     result, _ = _evaluate(wide_track, [None], trials=3, continuous=True)
     laps = [t.lap_time for t in result.trials]
     assert all(t.status == "lap_complete" for t in result.trials)
-    assert laps[0] > laps[1] + 0.1  # a standing start costs the acceleration; the next laps start flying
+    # a standing start costs the acceleration; the next laps start flying. The first lap is 0.14 m short
+    # of a loop (DeepRacer counts it from the start pose's centre-line point, behind the reference point)
+    assert laps[0] > laps[1] + 0.05
     assert laps[1] == pytest.approx(laps[2], abs=0.02)
     starts = [t.start_time for t in result.trials]
     assert starts == pytest.approx([0.0, laps[0], laps[0] + laps[1]])
