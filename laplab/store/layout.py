@@ -8,6 +8,7 @@
         reward_function.py                 the user's reward function source
         laplab.json                        laplab's full training configuration
         error.txt                          why training died (a RewardFunctionError message)
+        .laplab-job.lock                   the running job's lock (see lock.py)
         training-simtrace/<iteration>-iteration.csv     iterations count from 0
         metrics/TrainingMetrics.json
         evaluation-<YYYYMMDDhhmmss>/evaluation-simtrace/0-iteration.csv
