@@ -1,0 +1,1 @@
+"""The console job service: the SQLite job store, runners and the worker process."""
