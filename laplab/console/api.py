@@ -359,7 +359,7 @@ async def model_events(name: str, request: Request, user: User = Depends(current
         seen, poses_seen = stream.seq, stream.poses_seq
         model = service.describe(name)
         yield _sse("status", {"status": model["status"], "progress": model["progress"]})
-        last_check = time.monotonic()
+        last_check = last_sent = time.monotonic()
         while True:
             if stream.seq > seen:
                 for seq, kind, data in list(stream.events):
@@ -374,7 +374,9 @@ async def model_events(name: str, request: Request, user: User = Depends(current
                 last_check = now
                 if await request.is_disconnected():
                     return
-                yield ": keep-alive\n\n"
+                if now - last_sent > 15.0:
+                    last_sent = now
+                    yield ": keep-alive\n\n"
             await asyncio.sleep(POSES_INTERVAL_S / 2)
 
     return StreamingResponse(generate(), media_type="text/event-stream",

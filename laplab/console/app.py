@@ -9,13 +9,13 @@ import logging
 import os
 from pathlib import Path
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
-from laplab.console.auth import load_secret
+from laplab.console.auth import current_user, load_secret
 from laplab.console.service import ConsoleService, default_workers
-from laplab.jobs.db import JobStore, laplab_home
+from laplab.jobs.db import JobStore, User, laplab_home
 from laplab.jobs.runner import LocalProcessRunner
 from laplab.jobs.sandbox import JobLimits
 
@@ -64,7 +64,8 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
             service.tick()
             store.interrupt_running()
 
-    app = FastAPI(title="laplab console", version="1", lifespan=lifespan,
+    app = FastAPI(title="laplab console", version="1", lifespan=lifespan, openapi_url=None, docs_url=None,
+                  redoc_url=None,
                   description="DeepRacer's console on laplab: models, training jobs, evaluations, leaderboard.")
     app.state.store, app.state.service, app.state.secret = store, service, load_secret(home)
     app.state.open_access, app.state.sandbox = open_access, runner.sandbox
@@ -79,6 +80,10 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
         return JSONResponse(status_code=422, content={"detail": {"message": message, "field": where or None,
                                                                  "errors": [{"loc": e.get("loc"), "msg": e.get("msg")}
                                                                             for e in errors]}})
+
+    @app.get("/openapi.json", include_in_schema=False)
+    def openapi(user: User = Depends(current_user)) -> dict:
+        return app.openapi()
 
     app.include_router(api.router)
     app.include_router(pages.router)

@@ -154,6 +154,10 @@ class ConsoleService:
                        owner=self._user_name(owner if owner is not None else self.owners().get(name)),
                        progress=job.progress if job else (100.0 if status == "ready" else 0.0),
                        job=job.to_dict() if job else None)
+        if not summary["exists"] and job is not None:  # queued: nothing on disk yet, show what was asked
+            meta = job.params.get("model_metadata") or {}
+            summary.update(track=job.params.get("track") or "classic_2018", sensor=meta.get("sensor", ["STATE"]),
+                           algorithm=meta.get("training_algorithm", "clipped_ppo"), max_time_s=job.params.get("max_time_s"))
         if job is not None and job.error and status in ("failed", "interrupted"):
             summary["error"] = summary.get("error") or job.error
         if summary["created"] is None and record is not None:
