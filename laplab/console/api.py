@@ -308,7 +308,8 @@ def _evaluation(job) -> dict:
     if stamp:
         document = read_evaluation_summary(ModelFolder(models_dir() / job.model), stamp)
         if document:
-            out.update(stamp=stamp, trials=document.get("trials", []), summary=document.get("summary"),
+            trials = [{**t, "progress": t.get("completion")} for t in document.get("trials", [])]
+            out.update(stamp=stamp, trials=trials, summary=document.get("summary"),
                        track=document.get("track", {}).get("name"), video=document.get("video"))
     return out
 

@@ -201,7 +201,7 @@ class ConsoleService:
 
     def stop(self, job: Job) -> None:
         if job.status == "queued":
-            self.store.update_job(job.id, status="failed" if job.kind == "evaluate" else "done",
+            self.store.update_job(job.id, status="interrupted" if job.kind == "resume" else "failed",
                                   finished=time.time(), error="stopped before it started")
             self._publish_status(job.model, job.id, "stopped")
             return

@@ -76,6 +76,16 @@ def job_mounts(job: Job) -> Mounts:
     return Mounts(writable, readonly)
 
 
+STOP_FILE = "stop"
+
+
+def request_stop(job_id: int) -> None:
+    """The worker polls for this file and stops after the current step, keeping its model."""
+    folder = job_folder(job_id)
+    if folder.is_dir():
+        (folder / STOP_FILE).touch()
+
+
 def write_spec(job: Job) -> Path:
     folder = job_folder(job.id)
     folder.mkdir(parents=True, exist_ok=True)
@@ -112,9 +122,8 @@ class LocalProcessRunner:
         return JobLimits(self.limits.memory_bytes, int(min(self.limits.cpu_seconds, budget)), self.limits.file_bytes)
 
     def stop(self, job: Job) -> None:
-        process = self._processes.get(job.id)
-        if process is not None and process.poll() is None:
-            os.killpg(process.pid, signal.SIGTERM)
+        """Ask through the job's folder (a signal would end bubblewrap, and with it the job, at once)."""
+        request_stop(job.id)
 
     def kill(self, job_id: int) -> None:
         process = self._processes.get(job_id)
@@ -131,10 +140,10 @@ class LocalProcessRunner:
         return [job_id for job_id, p in self._processes.items() if p.poll() is None]
 
     def shutdown(self, grace_s: float = 5.0) -> None:
-        """Stop every job (SIGTERM, then SIGKILL after ``grace_s``)."""
+        """Stop every job (a stop request, then SIGKILL after ``grace_s``): each keeps its last checkpoint."""
         for job_id, process in list(self._processes.items()):
             if process.poll() is None:
-                os.killpg(process.pid, signal.SIGTERM)
+                request_stop(job_id)
         for job_id, process in list(self._processes.items()):
             try:
                 process.wait(grace_s)

@@ -3,7 +3,8 @@
 The worker reads ``spec.json`` from its folder, runs the job with laplab's library calls, and reports
 only through files there (it cannot reach the database): ``events.jsonl`` gets one line per
 iteration, ``poses.json`` the cars' poses at most 15 times a second, ``result.json`` the outcome.
-SIGTERM stops a training after the current step and keeps the model, as Ctrl-C does on the CLI.
+A ``stop`` file in the folder (or SIGTERM) stops a training after the current step and keeps the
+model, as Ctrl-C does on the CLI.
 """
 
 from __future__ import annotations
@@ -29,6 +30,19 @@ class JobFiles:
         self.poses = folder / "poses.json"
         self.result = folder / "result.json"
         self.stop_requested = threading.Event()
+        self._stop_file = folder / "stop"
+        self._last_check = 0.0
+
+    def should_stop(self) -> bool:
+        """A signal, or the server's stop file (looked for at most 10 times a second)."""
+        if self.stop_requested.is_set():
+            return True
+        now = time.monotonic()
+        if now - self._last_check >= 0.1:
+            self._last_check = now
+            if self._stop_file.exists():
+                self.stop_requested.set()
+        return self.stop_requested.is_set()
 
     def event(self, kind: str, **data) -> None:
         with open(self.events, "a", encoding="utf-8") as out:
@@ -130,7 +144,7 @@ def _train(files: JobFiles, spec: dict) -> None:
     def on_iteration(report) -> None:
         files.event("iteration", report=asdict(report))
 
-    result = trainer.run(callbacks=(on_iteration,), should_stop=files.stop_requested.is_set)
+    result = trainer.run(callbacks=(on_iteration,), should_stop=files.should_stop)
     summary = {"stop_reason": result.stop_reason, "iterations": result.iterations, "episodes": result.episodes,
                "env_steps": result.env_steps, "elapsed_s": result.elapsed_s, "best_lap_time": result.best_lap_time}
     if result.error:

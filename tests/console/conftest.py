@@ -81,6 +81,12 @@ def serve(home, workers: int = 2, **kwargs):
         mp.undo()
 
 
+@pytest.fixture(scope="session")
+def serve_console():
+    """The context manager :func:`serve` (for tests that need their own server settings)."""
+    return serve
+
+
 @pytest.fixture(scope="module")
 def console(tmp_path_factory):
     with serve(tmp_path_factory.mktemp("console-home")) as running:
