@@ -303,8 +303,12 @@ class ConsoleService:
 
 def _death_reason(returncode: int, log: Path) -> str:
     import signal
-    if returncode < 0:
-        name = signal.Signals(-returncode).name
+    number = -returncode if returncode < 0 else returncode - 128 if 128 < returncode < 160 else None
+    if number is not None:  # killed by a signal (bubblewrap reports its child's as 128 + N)
+        try:
+            name = signal.Signals(number).name
+        except ValueError:
+            name = f"signal {number}"
         why = {"SIGXCPU": "it used up its CPU-time limit", "SIGKILL": "it was killed (memory or a stop)"}.get(name, name)
         return f"the job process ended by {name}: {why}"
     tail = ""
