@@ -303,7 +303,7 @@ const Console = (() => {
       $("#evaluations").replaceChildren(...list.slice().reverse().map(ev => el("div", {class: "evaluation", "data-evaluation": ev.id},
         el("h3", {}, `Evaluation ${ev.id} `, badge(ev.status), ev.track ? ` on ${ev.track}` : "", ev.summary ? ` · average of 3 laps ${lap(ev.summary.average_3)}` : ""),
         ev.error ? el("p", {class: "field-error"}, ev.error) : "",
-        ev.trials.length ? el("table", {class: "grid compact"}, el("thead", {}, el("tr", {}, ...["Trial", "Time", "Progress %", "Status", "Off-track", "Gap to optimal"].map(h => el("th", {}, h)))),
+        ev.trials.length ? el("table", {class: "grid compact"}, el("thead", {}, el("tr", {}, ...["Trial", "Time", "Progress %", "Status", "Off-track", "Gap to optimal"].map(h => el("th", {class: h === "Status" || h === "Trial" ? "" : "num"}, h)))),
           el("tbody", {}, ...ev.trials.map((t, i) => el("tr", {}, el("td", {}, i + 1), el("td", {class: "num"}, lap(t.lap_time)), el("td", {class: "num"}, fmt(t.progress, 1)),
             el("td", {}, t.status), el("td", {class: "num"}, t.off_track_count ?? "–"),
             el("td", {class: "num"}, t.lap_time && ev.summary?.optimal_lap_time ? `+${fmt(100 * (t.lap_time / ev.summary.optimal_lap_time - 1), 1)} %` : "–"))))) : "",
@@ -320,7 +320,7 @@ const Console = (() => {
     });
     loadEvaluations();
     const log = async () => { try { $("#job-log").textContent = (await api("GET", `/api/models/${name}/log`)).log; } catch (e) {} };
-    log(); setInterval(log, 5000);
+    log(); setInterval(() => { log(); if (!model.config || ["training", "queued", "stopping"].includes(model.status)) refresh(); }, 5000);
   }
 
   // ---- Leaderboard ---------------------------------------------------------------------------
@@ -330,7 +330,7 @@ const Console = (() => {
       const boards = await api("GET", `/api/leaderboard${select.value ? `?track=${encodeURIComponent(select.value)}` : ""}`);
       if (!select.options.length || select.options.length === 1) for (const b of boards) select.append(el("option", {value: b.track}, b.track));
       $("#boards").replaceChildren(...(boards.length ? boards.map(b => el("section", {class: "card", "data-board": b.track}, el("h2", {}, b.track),
-        el("table", {class: "grid"}, el("thead", {}, el("tr", {}, ...["Rank", "Racer", "Model", "Average of 3 laps", "Best lap", "Completion", "Off-track", "Gap to optimal"].map(h => el("th", {}, h)))),
+        el("table", {class: "grid"}, el("thead", {}, el("tr", {}, ...["Rank", "Racer", "Model", "Average of 3 laps", "Best lap", "Completion", "Off-track", "Gap to optimal"].map((h, i) => el("th", {class: i > 2 ? "num" : ""}, h)))),
           el("tbody", {}, ...b.entries.map(e => el("tr", {}, el("td", {}, e.rank), el("td", {}, e.user || "–"), el("td", {}, e.model), el("td", {class: "num"}, lap(e.average_3)),
             el("td", {class: "num"}, lap(e.best_lap)), el("td", {class: "num"}, `${fmt(e.completion, 1)} %`), el("td", {class: "num"}, e.off_track_count),
             el("td", {class: "num"}, e.gap_to_optimal ? `${fmt(100 * (e.gap_to_optimal - 1), 1)} %` : "–"))))))) : [el("p", {class: "card empty"}, "No evaluations yet: evaluate a model to enter the leaderboard.")]));
