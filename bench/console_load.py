@@ -54,6 +54,7 @@ def percentile(values: list[float], q: float) -> float:
 def baseline(home: Path, seconds: float) -> list[float | None]:
     """Two `laplab train` processes at once, no server."""
     env = {**os.environ, "LAPLAB_HOME": str(home)}
+    home.mkdir(parents=True, exist_ok=True)
     hp = home / "hp.json"
     hp.write_text(json.dumps(HYPERPARAMETERS))
     processes = [subprocess.Popen([sys.executable, "-m", "laplab.cli", "train", "--name", f"base-{i}", "--track", "oval",

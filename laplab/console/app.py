@@ -7,7 +7,6 @@ import asyncio
 import contextlib
 import logging
 import os
-from pathlib import Path
 
 from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -35,7 +34,7 @@ def ensure_admin(store: JobStore) -> str | None:
 def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_access: bool = False,
                limits: JobLimits = JobLimits(), tick_s: float | None = None) -> FastAPI:
     """The console app over ``$LAPLAB_HOME`` (database, secret key, model folders)."""
-    from laplab.console import api, pages
+    from laplab.console import api, api_results, pages
     from laplab.console.service import TICK_S
 
     home = laplab_home()
@@ -86,5 +85,6 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
         return app.openapi()
 
     app.include_router(api.router)
+    app.include_router(api_results.router)
     app.include_router(pages.router)
     return app

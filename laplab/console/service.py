@@ -145,11 +145,11 @@ class ConsoleService:
             return MODEL_STATUS[train_jobs[-1].status], train_jobs[-1]
         return ("failed" if summary.get("error") else "ready"), None
 
-    def describe(self, name: str, owner: int | None = None, jobs: list[Job] | None = None) -> dict:
+    def describe(self, name: str, owner: int | None = None, jobs: list[Job] | None = None,
+                 records: dict | None = None) -> dict:
         summary = dict(self.catalog.summary(name))
         status, job = self.model_status(name, summary, jobs)
-        records = self.store.model_records()
-        record = records.get(name)
+        record = (records if records is not None else self.store.model_records()).get(name)
         summary.update(status=status, description=record["description"] if record else "",
                        owner=self._user_name(owner if owner is not None else self.owners().get(name)),
                        progress=job.progress if job else (100.0 if status == "ready" else 0.0),
@@ -173,7 +173,8 @@ class ConsoleService:
         by_model: dict[str, list[Job]] = {}
         for job in all_jobs:
             by_model.setdefault(job.model, []).append(job)
-        out = [self.describe(name, owner, by_model.get(name, [])) for name, owner in sorted(self.owners().items())
+        records = self.store.model_records()
+        out = [self.describe(name, owner, by_model.get(name, []), records) for name, owner in sorted(self.owners().items())
                if user.is_admin or owner == user.id]
         return sorted(out, key=lambda m: m["created"] or "", reverse=True)
 

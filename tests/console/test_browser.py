@@ -6,7 +6,6 @@ kept under the test's output folder (``tmp_path``)."""
 from __future__ import annotations
 
 import shutil
-import time
 
 import pytest
 

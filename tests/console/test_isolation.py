@@ -4,7 +4,6 @@ loop or a 20 GB allocation fails its own job and nothing else."""
 
 from __future__ import annotations
 
-import time
 
 import pytest
 

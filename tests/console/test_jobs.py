@@ -9,7 +9,6 @@ import tarfile
 import threading
 import time
 
-import pytest
 
 TINY_HYPERPARAMETERS = {"num_episodes_between_training": 2, "num_epochs": 3, "batch_size": 32}
 
