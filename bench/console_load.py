@@ -84,6 +84,10 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
             if time.monotonic() > deadline:
                 raise SystemExit("the server did not start")
             time.sleep(0.2)
+        marker = home / "sandbox" / "trusted-numba" / "laplab-warmup-done"
+        warm_deadline = time.monotonic() + 600
+        while not marker.exists() and time.monotonic() < warm_deadline:  # the server's one-off numba warm-up
+            time.sleep(1)
         for i in range(2):
             answer = admin.post("/api/models", json={"name": f"served-{i}", "track": "oval", "max_time_s": seconds,
                                                      "hyperparameters": HYPERPARAMETERS})

@@ -32,8 +32,9 @@ def ensure_admin(store: JobStore) -> str | None:
 
 
 def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_access: bool = False,
-               limits: JobLimits = JobLimits(), tick_s: float | None = None) -> FastAPI:
-    """The console app over ``$LAPLAB_HOME`` (database, secret key, model folders)."""
+               limits: JobLimits = JobLimits(), tick_s: float | None = None, warm_cache: bool = True) -> FastAPI:
+    """The console app over ``$LAPLAB_HOME`` (database, secret key, model folders); ``warm_cache``
+    compiles numba's kernels once in the background for new users' jobs (:mod:`laplab.jobs.warmup`)."""
     from laplab.console import api, api_results, pages
     from laplab.console.service import TICK_S
 
@@ -55,10 +56,15 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
                     log.exception("scheduler tick failed")
                 await asyncio.sleep(interval)
         task = asyncio.create_task(schedule())
+        from laplab.jobs.warmup import start_warmup
+        warmup = start_warmup(home) if warm_cache else None
         try:
             yield
         finally:
             task.cancel()
+            if warmup is not None and warmup.poll() is None:
+                warmup.kill()
+                warmup.wait()
             await asyncio.get_running_loop().run_in_executor(None, runner.shutdown)
             service.tick()
             store.interrupt_running()

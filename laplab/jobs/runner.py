@@ -65,6 +65,8 @@ def job_mounts(job: Job) -> Mounts:
     writable = {str(folder): f"{SANDBOX_HOME}/job", str(target.resolve()): f"{SANDBOX_HOME}/models/{job.model}"}
     cache = owner_cache(job.owner)
     cache.mkdir(parents=True, exist_ok=True)
+    from laplab.jobs.warmup import seed
+    seed(cache / "numba", laplab_home())
     writable[str(cache)] = f"{SANDBOX_HOME}/cache"
     readonly = {}
     source = job.params.get("source")

@@ -73,6 +73,8 @@ def validate_confined(source: str, track: str | None, model_metadata: dict | Non
     from laplab.jobs.runner import owner_cache
     cache = owner_cache(owner)  # never shared between users (numba's cache is code)
     cache.mkdir(parents=True, exist_ok=True)
+    from laplab.jobs.warmup import seed
+    seed(cache / "numba", laplab_home())
     try:
         mounts = Mounts({str(scratch): f"{SANDBOX_HOME}/job", str(cache): f"{SANDBOX_HOME}/cache"}, readonly)
         home = SANDBOX_HOME if use else str(laplab_home())

@@ -59,7 +59,7 @@ def serve(home, workers: int = 2, **kwargs):
     mp.setenv("LAPLAB_HOME", str(home))
     mp.setenv("LAPLAB_ADMIN_TOKEN", ADMIN_TOKEN)
     try:
-        app = create_app(workers, **kwargs)
+        app = create_app(workers, **{"warm_cache": False, **kwargs})  # jobs compile their own (less load)
         port = free_port()
         server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
         thread = threading.Thread(target=server.run, daemon=True)
