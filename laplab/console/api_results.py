@@ -156,6 +156,7 @@ async def import_model(request: Request, file: UploadFile = File(...), name: str
         imported = await run_in_threadpool(exports.import_archive, file.file, name, service, user)
     except exports.ExportError as exc:
         raise bad_request(str(exc), "file") from None
+    service.models_changed()
     return service.describe(imported)
 
 

@@ -23,6 +23,7 @@ from laplab.jobs.runner import JobRunner, job_folder, models_dir
 from laplab.store.layout import ModelFolder, list_models
 
 TICK_S = 1.0 / 30.0
+LIST_TTL_S = 0.25
 TRAIN_KINDS = ("train", "clone", "resume")
 MODEL_STATUS = {"queued": "queued", "running": "training", "stopping": "stopping", "done": "ready",
                 "failed": "failed", "interrupted": "interrupted"}
@@ -124,6 +125,7 @@ class ConsoleService:
         self._event_offsets: dict[int, int] = {}
         self._poses_mtime: dict[int, int] = {}
         self.interrupted_at_start = store.interrupt_running()
+        self._list_cache: dict[int, tuple[float, list[dict]]] = {}
 
     # -- models ------------------------------------------------------------------------------------
 
@@ -169,6 +171,21 @@ class ConsoleService:
         return user.name if user else None
 
     def visible_models(self, user: User) -> list[dict]:
+        """The models ``user`` sees, newest first (a list at most ``LIST_TTL_S`` old: many pages and
+        scripts polling at once cost one computation per interval, not one each)."""
+        now = time.monotonic()
+        hit = self._list_cache.get(user.id)
+        if hit is not None and now - hit[0] < LIST_TTL_S:
+            return hit[1]
+        models = self._visible_models(user)
+        self._list_cache[user.id] = (now, models)
+        return models
+
+    def models_changed(self) -> None:
+        """Drop the cached model lists (a model was added or removed outside a job)."""
+        self._list_cache.clear()
+
+    def _visible_models(self, user: User) -> list[dict]:
         all_jobs = self.store.jobs(kind=TRAIN_KINDS)
         by_model: dict[str, list[Job]] = {}
         for job in all_jobs:
@@ -187,12 +204,14 @@ class ConsoleService:
             shutil.rmtree(job_folder(job.id), ignore_errors=True)
         shutil.rmtree(models_dir() / name, ignore_errors=True)
         self.store.forget_model(name)
+        self._list_cache.clear()
         self.hub.streams.pop(name, None)
 
     # -- jobs ------------------------------------------------------------------------------------
 
     def submit(self, kind: str, model: str, owner: int, params: dict, reward_source: str | None = None) -> Job:
         job = self.store.add_job(kind, model, owner, params)
+        self._list_cache.clear()
         folder = job_folder(job.id)
         folder.mkdir(parents=True, exist_ok=True)
         if reward_source is not None:
@@ -211,6 +230,7 @@ class ConsoleService:
         self.runner.stop(job)
 
     def _publish_status(self, model: str, job_id: int, status: str, **extra) -> None:
+        self._list_cache.clear()
         self.hub.publish(model, "status", {"status": status, "job": job_id, **extra})
 
     def tick(self) -> None:
