@@ -109,12 +109,25 @@ def own_model(request: Request, name: str, user: User) -> None:
         raise HTTPException(404, f"no model named {name!r} among your models")
 
 
+def check_track_name(track: str | None) -> None:
+    """The console takes track names (built-in or imported), never server paths."""
+    if track is None:
+        return
+    from laplab.track.registry import available_tracks
+    name = track.removesuffix("@reversed")
+    known = [t.name for t in available_tracks()]
+    if name not in known:
+        raise bad_request(f"unknown track {track!r}: pick one of {', '.join(known)} (GET /api/tracks); "
+                          "import other routes with `laplab tracks import FILE.npy`", "track")
+
+
 def _check_train_inputs(values: dict) -> None:
     """Build the TrainConfig the worker will build (every validator of the CLI), and load the track."""
     from dataclasses import replace
 
     from laplab.track.registry import load_track
     from laplab.train.config import TrainConfig
+    check_track_name(values.get("track"))
     try:
         config = replace(TrainConfig(), **{k: v for k, v in values.items() if v is not None})
         load_track(config.track)

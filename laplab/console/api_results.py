@@ -15,7 +15,7 @@ from starlette.background import BackgroundTask
 
 from laplab.console import exports
 from laplab.console.api import (Evaluate, ValidateReward, _field_of, _input_errors, _service, _validate_reward,
-                                bad_request, own_model)
+                                bad_request, check_track_name, own_model)
 from laplab.console.auth import current_user
 from laplab.jobs.db import User
 from laplab.jobs.runner import job_folder, models_dir
@@ -29,6 +29,7 @@ def start_evaluation(name: str, body: Evaluate, request: Request, user: User = D
     own_model(request, name, user)
     service = _service(request)
     from laplab.evaluate.trials import EvaluationError, EvaluationSettings
+    check_track_name(body.track)
     try:
         EvaluationSettings(**body.model_dump())
         if body.track:
@@ -162,12 +163,7 @@ async def import_model(request: Request, file: UploadFile = File(...), name: str
 
 @router.post("/reward/validate")
 async def validate_reward(body: ValidateReward, request: Request, user: User = Depends(current_user)) -> dict:
-    if body.track:
-        from laplab.track.registry import load_track
-        try:
-            load_track(body.track)
-        except _input_errors() as exc:
-            raise bad_request(str(exc), "track") from None
+    check_track_name(body.track)
     return await _validate_reward(request, user, body.source, body.track, body.model_metadata)
 
 
@@ -227,6 +223,17 @@ async def track_picture(name: str, user: User = Depends(current_user)):
     except _input_errors() as exc:
         raise HTTPException(404, str(exc)) from None
     return FileResponse(path, media_type="image/png", headers={"Cache-Control": "max-age=3600"})
+
+
+@router.get("/models/{name}/camera.png")
+def camera_png(name: str, request: Request, user: User = Depends(current_user)):
+    """The newest camera frame of a camera model's running (or last) training job."""
+    own_model(request, name, user)
+    for job in reversed(_service(request).store.jobs(model=name)):
+        path = job_folder(job.id) / "camera.png"
+        if path.exists():
+            return FileResponse(path, media_type="image/png", headers={"Cache-Control": "no-store"})
+    raise HTTPException(404, f"{name!r} has no camera frame (not a camera model, or not trained here)")
 
 
 @router.get("/models/{name}/log")

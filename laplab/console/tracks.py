@@ -24,9 +24,16 @@ def track_list() -> list[dict]:
     return out
 
 
+def _known(name: str) -> None:
+    from laplab.track.registry import available_tracks
+    if name not in {t.name for t in available_tracks()}:
+        raise FileNotFoundError(f"no track named {name!r}")
+
+
 def picture(name: str) -> Path:
     """A PNG of the track (rendered once by laplab.track.plot, then cached under $LAPLAB_HOME/console)."""
     from laplab.track.registry import load_track, resolve_track_path
+    _known(name)
     source = resolve_track_path(name)
     cache = laplab_home() / "console" / "tracks" / f"{source.stem}-{int(source.stat().st_mtime)}.png"
     if not cache.exists():
@@ -50,5 +57,6 @@ def _outline(path: str, mtime: float) -> dict:
 def outline(name: str) -> dict:
     """Centre line and borders (m) of a track, at most ~400 points each, for drawing cars over it."""
     from laplab.track.registry import resolve_track_path
+    _known(name)
     path = resolve_track_path(name)
     return _outline(str(path), path.stat().st_mtime)

@@ -19,6 +19,19 @@ from dataclasses import asdict, replace
 from pathlib import Path
 
 POSES_HZ = 15.0
+CAMERA_HZ = 2.0
+
+
+def camera_frame(obs):
+    """The newest camera frame (120, 160) uint8 of the first car, or None for models without a camera
+    (observations: ``(E, C, H, W)`` uint8, or a dict holding one such array per camera sensor)."""
+    import numpy as np
+    if isinstance(obs, dict):
+        from laplab.env.metadata import CAMERA_SENSORS
+        obs = next((v for k, v in obs.items() if k in CAMERA_SENSORS), None)
+    if not isinstance(obs, np.ndarray) or obs.ndim != 4 or obs.dtype != np.uint8 or not len(obs):
+        return None
+    return obs[0, -1]
 
 
 class JobFiles:
@@ -48,6 +61,12 @@ class JobFiles:
         with open(self.events, "a", encoding="utf-8") as out:
             out.write(json.dumps({"type": kind, "t": time.time(), **data}) + "\n")
 
+    def write_camera(self, frame) -> None:
+        from PIL import Image
+        temporary = self.folder / "camera.tmp.png"
+        Image.fromarray(frame).save(temporary)
+        temporary.replace(self.folder / "camera.png")
+
     def write_poses(self, document: dict) -> None:
         temporary = self.poses.with_suffix(".tmp")
         temporary.write_text(json.dumps(document))
@@ -66,7 +85,9 @@ def _live_trainer_class():
 
     class LiveTrainer(Trainer):
         pose_sink = None
+        camera_sink = None
         _last_pose_time = 0.0
+        _last_camera_time = 0.0
         _pose_seq = 0
 
         def _policy(self, deterministic: bool):
@@ -82,6 +103,11 @@ def _live_trainer_class():
                     self.pose_sink({"seq": self._pose_seq, "t": time.time(), "evaluation": deterministic,
                                     "cars": [[round(float(x), 3), round(float(y), 3), round(float(h), 3)]
                                              for x, y, h in zip(st.x, st.y, st.yaw)]})
+                if self.camera_sink is not None and not deterministic and now - self._last_camera_time >= 1.0 / CAMERA_HZ:
+                    self._last_camera_time = now
+                    frame = camera_frame(obs)
+                    if frame is not None:
+                        self.camera_sink(frame)
                 return act(obs)
             return act_and_publish
 
@@ -139,6 +165,8 @@ def _train(files: JobFiles, spec: dict) -> None:
         else:
             trainer = _new_trainer(name, replace(TrainConfig(), **values))
     trainer.pose_sink = files.write_poses
+    if trainer.metadata.camera is not None:
+        trainer.camera_sink = files.write_camera
     files.event("started", iteration=trainer.iteration)
 
     def on_iteration(report) -> None:

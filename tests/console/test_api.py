@@ -94,6 +94,7 @@ def test_reward_validation_reports_the_line(console):
     ({"name": "m-meta", "model_metadata": {"sensor": ["RADAR"]}}, 400, "model_metadata", "RADAR"),
     ({"name": "m-as", "model_metadata": {"action_space": [{"steering_angle": 90, "speed": 1}]}}, 400, "model_metadata", "steering"),
     ({"name": "m-track", "track": "no_such_track"}, 400, "track", "no_such_track"),
+    ({"name": "m-path", "track": "/root/secret-route.npy"}, 400, "track", "unknown track"),
     ({"name": "m-time", "max_time_s": -5}, 400, "max_time_s", "max time"),
     ({"name": "m-reward", "reward_function": BROKEN_REWARD}, 400, "reward_function", "line 3"),
     ({"name": "m-unknown", "colour": "red"}, 422, "colour", "Extra inputs"),

@@ -50,3 +50,18 @@ def test_serve_refuses_no_accounts_on_a_public_address(tmp_path, monkeypatch, ca
     assert main(["serve", "--host", "0.0.0.0", "--no-accounts"]) == 2
     assert "only with accounts" in capsys.readouterr().err
     assert main(["serve", "--workers", "0"]) == 2
+
+
+def test_camera_frame_picks_the_newest_frame_of_the_first_car(tmp_path):
+    import numpy as np
+    from PIL import Image
+
+    from laplab.jobs.worker import JobFiles, camera_frame
+    stack = np.zeros((4, 3, 120, 160), dtype=np.uint8)
+    stack[0, -1, 10:20, 30:40] = 200
+    frame = camera_frame(stack)
+    assert frame.shape == (120, 160) and frame[15, 35] == 200
+    assert camera_frame({"FRONT_FACING_CAMERA": stack, "LIDAR": np.zeros((4, 64), np.float32)})[15, 35] == 200
+    assert camera_frame(np.zeros((4, 30), np.float32)) is None  # STATE or lidar only
+    JobFiles(tmp_path).write_camera(frame)
+    assert np.asarray(Image.open(tmp_path / "camera.png"))[15, 35] == 200

@@ -289,6 +289,12 @@ const Console = (() => {
       $("#reward-source").textContent = model.reward_function || "";
     };
     renderModel(); renderRows(); await live.setTrack(model.track || "classic_2018");
+    if ((model.sensor || []).some(s => s.includes("CAMERA"))) {
+      $("#camera-box").hidden = false;
+      const frame = () => { if (["training", "stopping"].includes(model.status) || !$("#camera").src) $("#camera").src = `/api/models/${name}/camera.png?t=${Date.now()}`; };
+      $("#camera").addEventListener("error", () => $("#camera-box").hidden = model.status !== "training");
+      frame(); setInterval(frame, 1000);
+    }
     const tracks = await api("GET", "/api/tracks");
     $("#eval-track").replaceChildren(...tracks.map(t => el("option", {value: t.name, selected: t.name === model.track}, t.name)));
     const refresh = async () => { model = await api("GET", `/api/models/${name}`); rows = model.iterations || []; renderModel(); renderRows(); };
