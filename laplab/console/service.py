@@ -93,6 +93,7 @@ class ModelCatalog:
         for row in iterations:
             if row.get("best_lap_time") is not None:
                 best = row["best_lap_time"] if best is None else min(best, row["best_lap_time"])
+        best = _best_with_evaluations(folder, best)
         created = folder.root.stat().st_mtime if folder.root.exists() else None
         if folder.laplab_config.exists():
             created = folder.laplab_config.stat().st_mtime
@@ -320,6 +321,22 @@ class ConsoleService:
             target.rmdir()  # validation failed before anything was written
         model_status = MODEL_STATUS[status] if job.kind in TRAIN_KINDS else status
         self._publish_status(job.model, job_id, model_status, kind=job.kind, error=error)
+
+
+def _best_with_evaluations(folder: ModelFolder, best: float | None) -> float | None:
+    """The best lap of training and of the model's evaluations (s), None without a lap."""
+    if not folder.exists():
+        return best
+    from laplab.evaluate.trials import read_evaluation_summary
+    for stamp in folder.list_evaluations():
+        try:
+            document = read_evaluation_summary(folder, stamp) or {}
+        except Exception:  # noqa: BLE001 - a damaged summary leaves the list as it is
+            continue
+        lap = (document.get("summary") or {}).get("best_lap")
+        if lap is not None:
+            best = lap if best is None else min(best, lap)
+    return best
 
 
 def _death_reason(returncode: int, log: Path) -> str:
