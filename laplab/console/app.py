@@ -16,7 +16,7 @@ from laplab.console.auth import current_user, load_secret
 from laplab.console.service import ConsoleService, default_workers
 from laplab.jobs.db import JobStore, User, laplab_home
 from laplab.jobs.runner import LocalProcessRunner
-from laplab.jobs.sandbox import JobLimits
+from laplab.jobs.confinement import JobLimits
 
 log = logging.getLogger("laplab.console")
 

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 from laplab.jobs.db import laplab_home
-from laplab.jobs.sandbox import JobLimits, clean_environment, limits_preexec
+from laplab.jobs.confinement import JobLimits, clean_environment, limits_preexec
 
 EXPORT_TIMEOUT_S = 300.0
 MAX_IMPORT_BYTES = 2 * 1024 ** 3

@@ -1,1 +1,1 @@
-"""The console job service: the SQLite job store, runners and the worker process."""
+"""Jobs: running training and evaluation under a supervisor (supervisor.py, sandbox.py)."""

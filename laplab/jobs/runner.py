@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Protocol
 
 from laplab.jobs.db import Job, laplab_home
-from laplab.jobs.sandbox import SANDBOX_HOME, JobLimits, Mounts, bubblewrap_works, clean_environment, start_confined
+from laplab.jobs.confinement import SANDBOX_HOME, JobLimits, Mounts, bubblewrap_works, clean_environment, start_confined
 
 
 @dataclass(frozen=True)

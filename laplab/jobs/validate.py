@@ -63,7 +63,7 @@ def validate_confined(source: str, track: str | None, model_metadata: dict | Non
                       sandbox: bool | None = None) -> dict:
     """Run the validation in a confined child process; returns its answer (a dict as above)."""
     from laplab.jobs.db import laplab_home
-    from laplab.jobs.sandbox import SANDBOX_HOME, JobLimits, Mounts, bubblewrap_works, clean_environment, confined_command, limits_preexec
+    from laplab.jobs.confinement import SANDBOX_HOME, JobLimits, Mounts, bubblewrap_works, clean_environment, confined_command, limits_preexec
     use = bubblewrap_works() if sandbox is None else sandbox
     readonly = {}
     tracks = laplab_home() / "tracks"

@@ -40,7 +40,7 @@ def seed(target: Path, home: Path) -> bool:
 
 def start_warmup(home: Path) -> subprocess.Popen | None:
     """Start the warm-up in the background unless it is done (returns the process, or None)."""
-    from laplab.jobs.sandbox import clean_environment
+    from laplab.jobs.confinement import clean_environment
     cache = trusted_cache(home)
     if (cache / READY_MARKER).exists():
         return None

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-from laplab.jobs.sandbox import JobLimits, bubblewrap_works
+from laplab.jobs.confinement import JobLimits, bubblewrap_works
 
 
 TINY = {"num_episodes_between_training": 2, "num_epochs": 3, "batch_size": 32}
