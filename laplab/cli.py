@@ -26,6 +26,8 @@ COMMAND_MODULES = (
     "laplab.commands.report",
     "laplab.commands.export",
     "laplab.commands.render",
+    "laplab.commands.serve",
+    "laplab.commands.users",
 )
 
 

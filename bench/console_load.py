@@ -1,0 +1,175 @@
+"""The console under load: 50 concurrent API clients and 20 open event streams against a server
+running 2 trainings.
+
+Prints the p50 / p99 latency of ``GET /api/models``, the delivery latency of ``iteration`` events
+(the worker's write time to the moment a stream client reads the event), and the trainings' env
+steps per second against the same two trainings run by ``laplab train`` without the server.
+
+Everything runs on this machine (server, jobs and clients share its cores), on 127.0.0.1, with a
+fresh temporary ``$LAPLAB_HOME``, bounded by ``--seconds`` per phase.
+
+Usage: python bench/console_load.py [--seconds 90] [--clients 50] [--streams 20] [--think 0.2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import httpx
+
+TOKEN = "bench-admin-token"
+HYPERPARAMETERS = {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def steps_per_second(model_dir: Path) -> float | None:
+    """Env steps per wall second of a training, from laplab's iteration log."""
+    path = model_dir / "metrics" / "laplab-iterations.json"
+    if not path.exists():
+        return None
+    rows = json.loads(path.read_text())["iterations"]
+    return rows[-1]["env_steps"] / rows[-1]["elapsed_s"] if rows else None
+
+
+def percentile(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(round(q / 100 * (len(ordered) - 1))))] if ordered else float("nan")
+
+
+def baseline(home: Path, seconds: float) -> list[float | None]:
+    """Two `laplab train` processes at once, no server."""
+    env = {**os.environ, "LAPLAB_HOME": str(home)}
+    home.mkdir(parents=True, exist_ok=True)
+    hp = home / "hp.json"
+    hp.write_text(json.dumps(HYPERPARAMETERS))
+    processes = [subprocess.Popen([sys.executable, "-m", "laplab.cli", "train", "--name", f"base-{i}", "--track", "oval",
+                                   "--max-time", f"{seconds}s", "--hyperparameters", str(hp), "--quiet"],
+                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for i in range(2)]
+    for p in processes:
+        p.wait(seconds + 600)
+    return [steps_per_second(home / "models" / f"base-{i}") for i in range(2)]
+
+
+def with_server(home: Path, seconds: float, clients: int, streams: int, think: float) -> dict:
+    port = free_port()
+    env = {**os.environ, "LAPLAB_HOME": str(home), "LAPLAB_ADMIN_TOKEN": TOKEN}
+    server = subprocess.Popen([sys.executable, "-m", "laplab.cli", "serve", "--port", str(port), "--workers", "2"],
+                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    url = f"http://127.0.0.1:{port}"
+    headers = {"Authorization": f"Bearer {TOKEN}"}
+    admin = httpx.Client(base_url=url, headers=headers, timeout=30)
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                if admin.get("/api/health").status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            if time.monotonic() > deadline:
+                raise SystemExit("the server did not start")
+            time.sleep(0.2)
+        marker = home / "sandbox" / "trusted-numba" / "laplab-warmup-done"
+        warm_deadline = time.monotonic() + 600
+        while not marker.exists() and time.monotonic() < warm_deadline:  # the server's one-off numba warm-up
+            time.sleep(1)
+        for i in range(2):
+            answer = admin.post("/api/models", json={"name": f"served-{i}", "track": "oval", "max_time_s": seconds,
+                                                     "hyperparameters": HYPERPARAMETERS})
+            answer.raise_for_status()
+        stop = threading.Event()
+        latencies: list[float] = []
+        deliveries: list[float] = []
+        errors = [0]
+
+        def api_client():
+            with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
+                while not stop.is_set():
+                    t0 = time.perf_counter()
+                    try:
+                        ok = client.get("/api/models").status_code == 200
+                    except httpx.HTTPError:
+                        ok = False
+                    if ok:
+                        latencies.append(time.perf_counter() - t0)
+                    else:
+                        errors[0] += 1
+                    stop.wait(think)
+
+        def stream_client(model: str):
+            with httpx.Client(base_url=url, headers=headers, timeout=httpx.Timeout(30, read=None)) as client:
+                try:
+                    with client.stream("GET", f"/api/models/{model}/events") as response:
+                        kind = None
+                        for line in response.iter_lines():
+                            if stop.is_set():
+                                return
+                            if line.startswith("event: "):
+                                kind = line[7:]
+                            elif line.startswith("data: ") and kind == "iteration":
+                                deliveries.append(time.time() - json.loads(line[6:])["t"])
+                except httpx.HTTPError:
+                    errors[0] += 1
+
+        threads = [threading.Thread(target=api_client, daemon=True) for _ in range(clients)]
+        threads += [threading.Thread(target=stream_client, args=(f"served-{i % 2}",), daemon=True) for i in range(streams)]
+        for t in threads:
+            t.start()
+        end = time.monotonic() + seconds + 600
+        while time.monotonic() < end:
+            statuses = [admin.get(f"/api/models/served-{i}").json()["status"] for i in range(2)]
+            if all(s in ("ready", "failed") for s in statuses):
+                break
+            time.sleep(1)
+        stop.set()
+        for t in threads:
+            t.join(5)
+        return {"latencies": latencies, "deliveries": deliveries, "errors": errors[0], "statuses": statuses,
+                "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)]}
+    finally:
+        admin.close()
+        server.terminate()
+        server.wait(60)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--seconds", type=float, default=90.0, help="training time of each phase (default 90)")
+    parser.add_argument("--clients", type=int, default=50)
+    parser.add_argument("--streams", type=int, default=20)
+    parser.add_argument("--think", type=float, default=0.2, help="s each API client waits between requests")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory(prefix="laplab-bench-") as folder:
+        root = Path(folder)
+        base = baseline(root / "baseline", args.seconds)
+        served = with_server(root / "served", args.seconds, args.clients, args.streams, args.think)
+    lat, dl = served["latencies"], served["deliveries"]
+    print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end")
+    print(f"GET /api/models: {len(lat)} requests from {args.clients} clients (think {args.think:g} s): "
+          f"p50 {1000 * percentile(lat, 50):.1f} ms, p99 {1000 * percentile(lat, 99):.1f} ms, errors {served['errors']}")
+    print(f"iteration events over {args.streams} streams: {len(dl)} delivered, p50 {1000 * percentile(dl, 50):.0f} ms, "
+          f"p99 {1000 * percentile(dl, 99):.0f} ms, max {1000 * max(dl, default=float('nan')):.0f} ms")
+    fmt = lambda xs: ", ".join("-" if x is None else f"{x:.1f}" for x in xs)  # noqa: E731
+    mean = lambda xs: statistics.mean([x for x in xs if x is not None] or [float("nan")])  # noqa: E731
+    print(f"env steps/s of 2 trainings: without the server {fmt(base)} (mean {mean(base):.1f}); "
+          f"with the server and the load {fmt(served['steps'])} (mean {mean(served['steps']):.1f}); "
+          f"ratio {mean(served['steps']) / mean(base):.2f}; final statuses {served['statuses']}")
+
+
+if __name__ == "__main__":
+    main()

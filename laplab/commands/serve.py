@@ -1,0 +1,65 @@
+"""``laplab serve``: the console in a browser, on the job service (FastAPI + uvicorn)."""
+
+from __future__ import annotations
+
+import argparse
+import ipaddress
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "serve", help="start the console (web pages and JSON API) with its job service",
+        description="Serve DeepRacer's console for laplab: create, train, evaluate, clone, import and download "
+                    "models in a browser, with accounts and a shared leaderboard. Jobs run as confined child "
+                    "processes, at most --workers at a time. See docs/console.md.")
+    parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    parser.add_argument("--port", type=int, default=8080, help="port (default 8080)")
+    parser.add_argument("--workers", type=int, default=None, help="jobs run at once (default: one per two cores)")
+    parser.add_argument("--no-accounts", action="store_true",
+                        help="everyone is the admin, no login (only with a loopback --host)")
+    parser.set_defaults(func=run)
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def run(args: argparse.Namespace) -> int:
+    from laplab.cli import UserError
+    try:
+        import uvicorn
+
+        from laplab.console.app import create_app
+    except ImportError as exc:
+        raise UserError(f"the console needs its extra: pip install -e \".[console]\" ({exc})") from None
+    if args.no_accounts and not is_loopback(args.host):
+        raise UserError(f"--host {args.host} serves other machines: it works only with accounts on "
+                        "(drop --no-accounts); everyone on the network could otherwise run code as you.")
+    if args.workers is not None and args.workers < 1:
+        raise UserError(f"--workers must be >= 1, got {args.workers}")
+    if not 0 < args.port < 65536:
+        raise UserError(f"--port must be within 1..65535, got {args.port}")
+    app = create_app(args.workers, open_access=args.no_accounts)
+    store, service = app.state.store, app.state.service
+    admin = store.admin()
+    token = app.state.first_token
+    if token is None and not args.no_accounts:
+        token = store.add_token(admin.id, "serve-link", lifetime_s=24 * 3600.0)
+    shown = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
+    url = f"http://{shown}:{args.port}/"
+    print(f"laplab console: {service.workers} job worker(s), jobs {'sandboxed with bubblewrap' if app.state.sandbox else 'NOT sandboxed (bubblewrap missing): limits and a clean environment only'}")
+    for job in service.interrupted_at_start:
+        print(f"  job {job.id} ({job.kind} {job.model}) was interrupted by the last shutdown: resume it from its page")
+    if args.no_accounts:
+        print(f"open {url} (no accounts: loopback only)", flush=True)
+    else:
+        print(f"open {url}login?token={token}", flush=True)
+        if app.state.first_token:
+            print(f"the admin's token (shown once; `laplab users add NAME` adds users): {token}", flush=True)
+    uvicorn.run(app, host=args.host, port=args.port, log_level="warning")
+    return 0

@@ -1,0 +1,1 @@
+"""laplab console: DeepRacer console pages and JSON API over the job service (laplab serve)."""

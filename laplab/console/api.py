@@ -1,0 +1,282 @@
+"""The console's JSON API (``/api/...``); the pages use it, so do scripts and tests.
+
+Every route but ``/api/health`` needs a user (see :mod:`laplab.console.auth`). A user sees and
+changes only their own models (the admin sees all); the leaderboard shows everyone's. Bad input
+gets a 400 (or FastAPI's 422 for a malformed body) whose ``detail`` is laplab's own message.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi.concurrency import run_in_threadpool
+from pydantic import BaseModel, ConfigDict, Field
+
+from laplab.console.auth import current_user
+from laplab.jobs.db import StoreError, User
+from laplab.jobs.runner import models_dir
+
+router = APIRouter(prefix="/api")
+
+
+class CreateModel(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    name: str
+    description: str = Field("", max_length=255)
+    track: str | None = None
+    reward_function: str | None = Field(None, max_length=100_000)
+    model_metadata: dict | None = None
+    hyperparameters: dict | None = None
+    max_time_s: float = 600.0
+    max_episodes: int | None = None
+    seed: int = 0
+
+
+class CloneModel(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    name: str
+    description: str = Field("", max_length=255)
+    track: str | None = None
+    reward_function: str | None = Field(None, max_length=100_000)
+    model_metadata: dict | None = None
+    hyperparameters: dict | None = None
+    max_time_s: float = 600.0
+    max_episodes: int | None = None
+
+
+class Resume(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    max_time_s: float | None = None
+
+
+class Evaluate(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    track: str | None = None
+    trials: int = 3
+    checkpoint: str = "best"
+    off_track_penalty: float = 2.0
+    crash_penalty: float = 5.0
+    resets: int | None = None
+    continuous: bool = False
+    max_trial_time: float = 600.0
+    video: bool = False
+
+
+class ValidateReward(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    source: str = Field(max_length=100_000)
+    track: str | None = None
+    model_metadata: dict | None = None
+
+
+def _service(request: Request):
+    return request.app.state.service
+
+
+def bad_request(message: str, field: str | None = None, **extra) -> HTTPException:
+    detail: dict[str, Any] = {"message": message}
+    if field:
+        detail["field"] = field
+    detail.update(extra)
+    return HTTPException(400, detail)
+
+
+def _input_errors() -> tuple[type[BaseException], ...]:
+    from laplab.cli import user_error_types
+    from laplab.evaluate.trials import EvaluationError
+    return (*user_error_types(), EvaluationError)
+
+
+def _field_of(exc: BaseException) -> str | None:
+    from laplab.agents.hyperparameters import HyperparameterError
+    from laplab.env.action_space import ActionSpaceError
+    from laplab.env.metadata import MetadataError
+    from laplab.store.layout import ModelNameError
+    from laplab.track.geometry import TrackError
+    for kind, name in ((HyperparameterError, "hyperparameters"), (ActionSpaceError, "model_metadata"),
+                       (MetadataError, "model_metadata"), (ModelNameError, "name"), (TrackError, "track")):
+        if isinstance(exc, kind):
+            return name
+    return None
+
+
+def own_model(request: Request, name: str, user: User) -> None:
+    """404 unless ``name`` exists and ``user`` may see it (other users' models do not exist for you)."""
+    if not _service(request).can_see(user, name):
+        raise HTTPException(404, f"no model named {name!r} among your models")
+
+
+def check_track_name(track: str | None) -> None:
+    """The console takes track names (built-in or imported), never server paths."""
+    if track is None:
+        return
+    from laplab.track.registry import available_tracks
+    name = track.removesuffix("@reversed")
+    known = [t.name for t in available_tracks()]
+    if name not in known:
+        raise bad_request(f"unknown track {track!r}: pick one of {', '.join(known)} (GET /api/tracks); "
+                          "import other routes with `laplab tracks import FILE.npy`", "track")
+
+
+def _check_train_inputs(values: dict) -> None:
+    """Build the TrainConfig the worker will build (every validator of the CLI), and load the track."""
+    from dataclasses import replace
+
+    from laplab.track.registry import load_track
+    from laplab.train.config import TrainConfig
+    check_track_name(values.get("track"))
+    try:
+        config = replace(TrainConfig(), **{k: v for k, v in values.items() if v is not None})
+        load_track(config.track)
+    except _input_errors() as exc:
+        raise bad_request(str(exc), _field_of(exc) or ("max_time_s" if "max time" in str(exc) else None)) from None
+    except (TypeError, ValueError) as exc:
+        raise bad_request(str(exc)) from None
+
+
+async def _validate_reward(request: Request, user: User, source: str, track: str | None, metadata: dict | None) -> dict:
+    from laplab.jobs.validate import validate_confined
+    return await run_in_threadpool(validate_confined, source, track, metadata, user.id,
+                                   request.app.state.sandbox)
+
+
+def _name_free(request: Request, name: str) -> None:
+    from laplab.store.layout import ModelNameError, validate_model_name
+    try:
+        validate_model_name(name)
+    except ModelNameError as exc:
+        raise bad_request(str(exc), "name") from None
+    if name in _service(request).owners() or (models_dir() / name).exists():
+        raise HTTPException(409, {"message": f"a model named {name!r} already exists; models are immutable: "
+                                             "pick another name or clone it", "field": "name"})
+
+
+@router.get("/health", tags=["console"])
+def health() -> dict:
+    return {"ok": True}
+
+
+@router.get("/me")
+def me(user: User = Depends(current_user)) -> dict:
+    return {"name": user.name, "admin": user.is_admin}
+
+
+@router.get("/models")
+def list_models_route(request: Request, user: User = Depends(current_user)) -> list[dict]:
+    return _service(request).visible_models(user)
+
+
+@router.post("/models", status_code=201)
+async def create_model(body: CreateModel, request: Request, user: User = Depends(current_user)) -> dict:
+    service = _service(request)
+    _name_free(request, body.name)
+    values = {"track": body.track, "model_metadata": body.model_metadata, "hyperparameters": body.hyperparameters,
+              "max_time_s": body.max_time_s, "max_episodes": body.max_episodes, "seed": body.seed}
+    _check_train_inputs(values)
+    if body.reward_function is not None:
+        answer = await _validate_reward(request, user, body.reward_function, body.track, body.model_metadata)
+        if not answer["ok"]:
+            first = answer["errors"][0]
+            raise bad_request(first["message"], "reward_function", line=first.get("line"), errors=answer["errors"])
+    try:
+        service.store.claim_model(body.name, user.id, body.description)
+    except StoreError as exc:
+        raise HTTPException(409, {"message": str(exc), "field": "name"}) from None
+    job = service.submit("train", body.name, user.id, {k: v for k, v in values.items() if v is not None},
+                         reward_source=body.reward_function)
+    return {**service.describe(body.name), "job": job.to_dict()}
+
+
+@router.get("/models/{name}")
+def get_model(name: str, request: Request, user: User = Depends(current_user)) -> dict:
+    own_model(request, name, user)
+    service = _service(request)
+    model = service.describe(name)
+    model["iterations"] = service.catalog.iterations(name)
+    model["evaluation_jobs"] = [j.to_dict() for j in service.store.jobs(model=name, kind=("evaluate",))]
+    folder = models_dir() / name
+    model["reward_function"] = (folder / "reward_function.py").read_text() if (folder / "reward_function.py").exists() else None
+    config = folder / "laplab.json"
+    model["config"] = json.loads(config.read_text()) if config.exists() else None
+    return model
+
+
+@router.post("/models/{name}/stop")
+def stop_model(name: str, request: Request, user: User = Depends(current_user)) -> dict:
+    own_model(request, name, user)
+    service = _service(request)
+    job = service.active_job(name)
+    if job is None or job.kind == "evaluate":
+        raise HTTPException(409, f"{name!r} is not training")
+    service.stop(job)
+    return service.describe(name)
+
+
+@router.post("/models/{name}/resume", status_code=202)
+def resume_model(name: str, request: Request, body: Resume | None = None, user: User = Depends(current_user)) -> dict:
+    own_model(request, name, user)
+    service = _service(request)
+    if service.active_job(name) is not None:
+        raise HTTPException(409, f"{name!r} already has a job queued or running")
+    if not (models_dir() / name / "laplab.json").exists():
+        raise HTTPException(409, f"{name!r} has no training to resume")
+    max_time = body.max_time_s if body and body.max_time_s else None
+    if max_time is not None and not (math.isfinite(max_time) and max_time > 0):
+        raise bad_request(f"max time must be a positive number of seconds, got {max_time!r}", "max_time_s")
+    owner = service.owners()[name]
+    job = service.submit("resume", name, owner, {"max_time_s": max_time} if max_time else {})
+    return {**service.describe(name), "job": job.to_dict()}
+
+
+@router.post("/models/{name}/clone", status_code=201)
+async def clone_model(name: str, body: CloneModel, request: Request, user: User = Depends(current_user)) -> dict:
+    own_model(request, name, user)
+    service = _service(request)
+    if service.active_job(name) is not None:
+        raise HTTPException(409, f"{name!r} is training: clone it when its training has ended")
+    if not (models_dir() / name / "laplab.json").exists():
+        raise HTTPException(409, f"{name!r} has no laplab training configuration to clone from")
+    _name_free(request, body.name)
+    source_config = json.loads((models_dir() / name / "laplab.json").read_text())
+    if body.model_metadata is not None:
+        from laplab.env.metadata import metadata_from_dict
+        try:
+            old = metadata_from_dict(source_config["model_metadata"], "source")
+            new = metadata_from_dict(body.model_metadata, "model_metadata")
+        except _input_errors() as exc:
+            raise bad_request(str(exc), "model_metadata") from None
+        for what in ("action_space", "sensors", "neural_network", "training_algorithm"):
+            if getattr(old, what) != getattr(new, what):
+                raise bad_request(f"a clone keeps its source's {what.replace('_', ' ')}: {name!r} has "
+                                  f"{getattr(old, what)}, the request asks for {getattr(new, what)}", "model_metadata")
+    values = {"track": body.track or source_config.get("track"), "model_metadata": source_config["model_metadata"],
+              "hyperparameters": body.hyperparameters or source_config.get("hyperparameters"),
+              "max_time_s": body.max_time_s, "max_episodes": body.max_episodes}
+    _check_train_inputs(values)
+    source = body.reward_function
+    if source is None:
+        source = (models_dir() / name / "reward_function.py").read_text()
+    answer = await _validate_reward(request, user, source, values["track"], values["model_metadata"])
+    if not answer["ok"]:
+        first = answer["errors"][0]
+        raise bad_request(first["message"], "reward_function", line=first.get("line"), errors=answer["errors"])
+    try:
+        service.store.claim_model(body.name, user.id, body.description)
+    except StoreError as exc:
+        raise HTTPException(409, {"message": str(exc), "field": "name"}) from None
+    params = {k: v for k, v in values.items() if v is not None and k != "model_metadata"}
+    job = service.submit("clone", body.name, user.id, {**params, "source": name}, reward_source=source)
+    return {**service.describe(body.name), "job": job.to_dict()}
+
+
+@router.delete("/models/{name}")
+def delete_model(name: str, request: Request, user: User = Depends(current_user)) -> dict:
+    own_model(request, name, user)
+    service = _service(request)
+    if service.active_job(name) is not None:
+        raise HTTPException(409, f"{name!r} has a job queued or running: stop it before deleting the model")
+    service.delete_model(name)
+    return {"deleted": name}

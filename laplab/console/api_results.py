@@ -1,0 +1,247 @@
+"""The console's JSON API, second half: evaluations, live events, downloads and imports, reward
+validation, the leaderboard and tracks (see :mod:`laplab.console.api` for the conventions)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import shutil
+import time
+
+from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, Request, UploadFile
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import FileResponse, StreamingResponse
+from starlette.background import BackgroundTask
+
+from laplab.console import exports
+from laplab.console.api import (Evaluate, ValidateReward, _field_of, _input_errors, _service, _validate_reward,
+                                bad_request, check_track_name, own_model)
+from laplab.console.auth import current_user
+from laplab.jobs.db import User
+from laplab.jobs.runner import job_folder, models_dir
+
+router = APIRouter(prefix="/api")
+POSES_INTERVAL_S = 1.0 / 15.0
+
+
+@router.post("/models/{name}/evaluations", status_code=202)
+def start_evaluation(name: str, body: Evaluate, request: Request, user: User = Depends(current_user)) -> dict:
+    own_model(request, name, user)
+    service = _service(request)
+    from laplab.evaluate.trials import EvaluationError, EvaluationSettings
+    check_track_name(body.track)
+    try:
+        EvaluationSettings(**body.model_dump())
+        if body.track:
+            from laplab.track.registry import load_track
+            load_track(body.track.removesuffix("@reversed"))
+    except _input_errors() as exc:
+        raise bad_request(str(exc), _field_of(exc) or ("trials" if "trials" in str(exc) else None)) from None
+    except EvaluationError as exc:
+        raise bad_request(str(exc)) from None
+    active = service.active_job(name)
+    if active is not None and active.kind != "evaluate":
+        raise HTTPException(409, f"{name!r} is training: evaluate it when its training has ended")
+    if not (models_dir() / name / "model" / "deepracer_checkpoints.json").exists():
+        raise HTTPException(409, f"{name!r} has no checkpoint to evaluate yet")
+    job = service.submit("evaluate", name, service.owners()[name], body.model_dump())
+    return {"id": job.id, "status": job.status}
+
+
+def _evaluation(job) -> dict:
+    from laplab.evaluate.trials import read_evaluation_summary
+    from laplab.store.layout import ModelFolder
+    status = {"queued": "queued", "running": "running", "stopping": "running", "done": "done"}.get(job.status, "failed")
+    out = {"id": job.id, "status": status, "settings": job.params, "created": job.created, "error": job.error,
+           "trials": [], "summary": None, "stamp": None}
+    stamp = (job.result or {}).get("stamp")
+    if stamp:
+        document = read_evaluation_summary(ModelFolder(models_dir() / job.model), stamp)
+        if document:
+            trials = [{**t, "progress": t.get("completion")} for t in document.get("trials", [])]
+            out.update(stamp=stamp, trials=trials, summary=document.get("summary"),
+                       track=document.get("track", {}).get("name"), video=document.get("video"))
+    return out
+
+
+@router.get("/models/{name}/evaluations")
+def list_evaluations(name: str, request: Request, user: User = Depends(current_user)) -> list[dict]:
+    own_model(request, name, user)
+    return [_evaluation(j) for j in _service(request).store.jobs(model=name, kind=("evaluate",))]
+
+
+@router.get("/models/{name}/evaluations/{job_id}")
+def get_evaluation(name: str, job_id: int, request: Request, user: User = Depends(current_user)) -> dict:
+    own_model(request, name, user)
+    job = _service(request).store.job(job_id)
+    if job is None or job.model != name or job.kind != "evaluate":
+        raise HTTPException(404, f"no evaluation {job_id} of {name!r}")
+    return _evaluation(job)
+
+
+@router.get("/models/{name}/video/{stamp}")
+def evaluation_video(name: str, stamp: str, request: Request, user: User = Depends(current_user)):
+    own_model(request, name, user)
+    from laplab.store.layout import ModelFolder
+    try:
+        folder = ModelFolder(models_dir() / name).evaluation_dir(stamp)
+    except ValueError as exc:
+        raise HTTPException(404, str(exc)) from None
+    videos = sorted(folder.glob("*.mp4")) + sorted(folder.glob("*.gif"))
+    if not videos:
+        raise HTTPException(404, "this evaluation has no video")
+    return FileResponse(videos[0])
+
+
+def _sse(kind: str, data: dict, event_id: int | None = None) -> str:
+    head = f"id: {event_id}\n" if event_id is not None else ""
+    return f"{head}event: {kind}\ndata: {json.dumps(data)}\n\n"
+
+
+@router.get("/models/{name}/events")
+async def model_events(name: str, request: Request, user: User = Depends(current_user)) -> StreamingResponse:
+    """Server-sent events: ``status`` on each status change, ``iteration`` per training iteration,
+    ``poses`` (the cars on the track) up to 15 times a second while a job drives."""
+    own_model(request, name, user)
+    service = _service(request)
+    stream = service.hub.stream(name)
+
+    async def generate():
+        seen, poses_seen = stream.seq, stream.poses_seq
+        model = service.describe(name)
+        yield _sse("status", {"status": model["status"], "progress": model["progress"]})
+        last_check = last_sent = time.monotonic()
+        while True:
+            if stream.seq > seen:
+                for seq, kind, data in list(stream.events):
+                    if seq > seen:
+                        yield _sse(kind, data, seq)
+                seen = stream.seq
+            if stream.poses_seq > poses_seen and stream.poses is not None:
+                poses_seen = stream.poses_seq
+                yield _sse("poses", stream.poses)
+            now = time.monotonic()
+            if now - last_check > 1.0:
+                last_check = now
+                if await request.is_disconnected():
+                    return
+                if now - last_sent > 15.0:
+                    last_sent = now
+                    yield ": keep-alive\n\n"
+            await asyncio.sleep(POSES_INTERVAL_S / 2)
+
+    return StreamingResponse(generate(), media_type="text/event-stream",
+                             headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+
+
+@router.get("/models/{name}/download")
+async def download(name: str, request: Request, format: str = Query("tar", pattern="^(tar|onnx)$"),
+                   user: User = Depends(current_user)):
+    own_model(request, name, user)
+    if not (models_dir() / name / "model" / "deepracer_checkpoints.json").exists():
+        raise HTTPException(409, f"{name!r} has no checkpoint to download yet")
+    try:
+        path, folder = await run_in_threadpool(exports.export, name, format)
+    except exports.ExportError as exc:
+        raise bad_request(str(exc)) from None
+    suffix = ".tar.gz" if format == "tar" else "-onnx.tar.gz"
+    return FileResponse(path, media_type="application/gzip", filename=f"{name}{suffix}",
+                        background=BackgroundTask(shutil.rmtree, folder, ignore_errors=True))
+
+
+@router.post("/models/import", status_code=201)
+async def import_model(request: Request, file: UploadFile = File(...), name: str | None = Form(None),
+                       user: User = Depends(current_user)) -> dict:
+    service = _service(request)
+    try:
+        imported = await run_in_threadpool(exports.import_archive, file.file, name, service, user)
+    except exports.ExportError as exc:
+        raise bad_request(str(exc), "file") from None
+    service.models_changed()
+    return service.describe(imported)
+
+
+@router.post("/reward/validate")
+async def validate_reward(body: ValidateReward, request: Request, user: User = Depends(current_user)) -> dict:
+    check_track_name(body.track)
+    return await _validate_reward(request, user, body.source, body.track, body.model_metadata)
+
+
+@router.get("/reward/examples")
+def reward_examples(user: User = Depends(current_user)) -> list[dict]:
+    from pathlib import Path
+
+    import laplab.reward.examples as examples
+    folder = Path(examples.__file__).parent
+    return [{"name": p.stem, "source": p.read_text()} for p in sorted(folder.glob("*.py")) if p.stem != "__init__"]
+
+
+@router.get("/leaderboard")
+async def leaderboard_route(request: Request, track: str | None = None, user: User = Depends(current_user)) -> list[dict]:
+    """Per track, every user's best evaluated model (average of 3 consecutive laps, best lap, completion)."""
+    service = _service(request)
+    from laplab.evaluate.leaderboard import leaderboard
+    try:
+        boards = await run_in_threadpool(leaderboard, track, models_dir())
+    except _input_errors() as exc:
+        raise bad_request(str(exc), "track") from None
+    owners = service.owners()
+    names = {u.id: u.name for u in service.store.users()}
+    out = []
+    for board_track, entries in boards.items():
+        rows, seen = [], set()
+        for entry in entries:
+            owner = owners.get(entry.model)
+            if owner is None or owner in seen:
+                continue
+            seen.add(owner)
+            rows.append({**entry.to_dict(), "rank": len(rows) + 1, "user": names.get(owner)})
+        out.append({"track": board_track, "entries": rows})
+    return out
+
+
+@router.get("/tracks")
+def tracks(request: Request, user: User = Depends(current_user)) -> list[dict]:
+    from laplab.console.tracks import track_list
+    return track_list()
+
+
+@router.get("/tracks/{name}/outline")
+def track_outline(name: str, user: User = Depends(current_user)) -> dict:
+    from laplab.console.tracks import outline
+    try:
+        return outline(name)
+    except _input_errors() as exc:
+        raise HTTPException(404, str(exc)) from None
+
+
+@router.get("/tracks/{name}/picture.png")
+async def track_picture(name: str, user: User = Depends(current_user)):
+    from laplab.console.tracks import picture
+    try:
+        path = await run_in_threadpool(picture, name)
+    except _input_errors() as exc:
+        raise HTTPException(404, str(exc)) from None
+    return FileResponse(path, media_type="image/png", headers={"Cache-Control": "max-age=3600"})
+
+
+@router.get("/models/{name}/camera.png")
+def camera_png(name: str, request: Request, user: User = Depends(current_user)):
+    """The newest camera frame of a camera model's running (or last) training job."""
+    own_model(request, name, user)
+    for job in reversed(_service(request).store.jobs(model=name)):
+        path = job_folder(job.id) / "camera.png"
+        if path.exists():
+            return FileResponse(path, media_type="image/png", headers={"Cache-Control": "no-store"})
+    raise HTTPException(404, f"{name!r} has no camera frame (not a camera model, or not trained here)")
+
+
+@router.get("/models/{name}/log")
+def job_log(name: str, request: Request, user: User = Depends(current_user)) -> dict:
+    own_model(request, name, user)
+    jobs = _service(request).store.jobs(model=name)
+    if not jobs:
+        return {"log": ""}
+    path = job_folder(jobs[-1].id) / "log.txt"
+    text = path.read_text(errors="replace")[-20_000:] if path.exists() else ""
+    return {"job": jobs[-1].id, "log": text}

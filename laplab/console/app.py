@@ -1,0 +1,96 @@
+"""The console application: ``create_app(...)`` builds the FastAPI app (API, pages, static files)
+with its job store, runner and scheduler; ``laplab serve`` runs it under uvicorn."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+
+from fastapi import Depends, FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+
+from laplab.console.auth import current_user, load_secret
+from laplab.console.service import ConsoleService, default_workers
+from laplab.jobs.db import JobStore, User, laplab_home
+from laplab.jobs.runner import LocalProcessRunner
+from laplab.jobs.confinement import JobLimits
+
+log = logging.getLogger("laplab.console")
+
+
+def ensure_admin(store: JobStore) -> str | None:
+    """Create the admin on first start; returns its token then (``LAPLAB_ADMIN_TOKEN`` when set)."""
+    if store.admin() is not None:
+        return None
+    env_token = os.environ.get("LAPLAB_ADMIN_TOKEN") or None
+    _, token = store.add_user("admin", is_admin=True, token=env_token,
+                              token_label="admin-env" if env_token else "login")
+    return token
+
+
+def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_access: bool = False,
+               limits: JobLimits = JobLimits(), tick_s: float | None = None, warm_cache: bool = True) -> FastAPI:
+    """The console app over ``$LAPLAB_HOME`` (database, secret key, model folders); ``warm_cache``
+    compiles numba's kernels once in the background for new users' jobs (:mod:`laplab.jobs.warmup`)."""
+    from laplab.console import api, api_results, pages
+    from laplab.console.service import TICK_S
+
+    home = laplab_home()
+    home.mkdir(parents=True, exist_ok=True)
+    store = JobStore()
+    first_token = ensure_admin(store)
+    runner = LocalProcessRunner(limits, sandbox=sandbox)
+    service = ConsoleService(store, runner, workers or default_workers())
+    interval = tick_s or TICK_S
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI):
+        async def schedule():
+            while True:
+                try:
+                    service.tick()
+                except Exception:  # noqa: BLE001 - the scheduler must survive one bad tick
+                    log.exception("scheduler tick failed")
+                await asyncio.sleep(interval)
+        task = asyncio.create_task(schedule())
+        from laplab.jobs.warmup import start_warmup
+        warmup = start_warmup(home) if warm_cache else None
+        try:
+            yield
+        finally:
+            task.cancel()
+            if warmup is not None and warmup.poll() is None:
+                warmup.kill()
+                warmup.wait()
+            await asyncio.get_running_loop().run_in_executor(None, runner.shutdown)
+            service.tick()
+            store.interrupt_running()
+
+    app = FastAPI(title="laplab console", version="1", lifespan=lifespan, openapi_url=None, docs_url=None,
+                  redoc_url=None,
+                  description="DeepRacer's console on laplab: models, training jobs, evaluations, leaderboard.")
+    app.state.store, app.state.service, app.state.secret = store, service, load_secret(home)
+    app.state.open_access, app.state.sandbox = open_access, runner.sandbox
+    app.state.first_token = first_token
+
+    @app.exception_handler(RequestValidationError)
+    async def validation_error(request: Request, exc: RequestValidationError):
+        errors = exc.errors()
+        first = errors[0] if errors else {}
+        where = ".".join(str(p) for p in first.get("loc", ()) if p != "body")
+        message = f"{where}: {first.get('msg', 'invalid value')}" if where else first.get("msg", "invalid request")
+        return JSONResponse(status_code=422, content={"detail": {"message": message, "field": where or None,
+                                                                 "errors": [{"loc": e.get("loc"), "msg": e.get("msg")}
+                                                                            for e in errors]}})
+
+    @app.get("/openapi.json", include_in_schema=False)
+    def openapi(user: User = Depends(current_user)) -> dict:
+        return app.openapi()
+
+    app.include_router(api.router)
+    app.include_router(api_results.router)
+    app.include_router(pages.router)
+    return app

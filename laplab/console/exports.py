@@ -1,0 +1,83 @@
+"""Download and import for the console: ``laplab export`` / ``laplab import`` in a child process
+with a clean environment and limits (torch stays out of the server; archives are untrusted)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import BinaryIO
+
+from laplab.jobs.db import laplab_home
+from laplab.jobs.confinement import JobLimits, clean_environment, limits_preexec
+
+EXPORT_TIMEOUT_S = 300.0
+MAX_IMPORT_BYTES = 2 * 1024 ** 3
+
+
+class ExportError(ValueError):
+    """An export or import that laplab refused, with laplab's message."""
+
+
+def _laplab(args: list[str], cwd: Path) -> str:
+    env = clean_environment({"LAPLAB_HOME": str(laplab_home())}, sandboxed=False)
+    try:
+        done = subprocess.run([sys.executable, "-m", "laplab.cli", *args], capture_output=True, env=env, cwd=cwd,
+                              timeout=EXPORT_TIMEOUT_S, preexec_fn=limits_preexec(JobLimits(cpu_seconds=600)))
+    except subprocess.TimeoutExpired:
+        raise ExportError(f"`laplab {args[0]}` did not finish within {EXPORT_TIMEOUT_S:g} s") from None
+    if done.returncode != 0:
+        message = done.stderr.decode(errors="replace").strip().splitlines()
+        raise ExportError(message[-1].split(": error: ", 1)[-1] if message else f"`laplab {args[0]}` failed")
+    return done.stdout.decode(errors="replace")
+
+
+def export(name: str, fmt: str) -> tuple[Path, Path]:
+    """(the file to send, the temporary folder to remove afterwards)."""
+    folder = Path(tempfile.mkdtemp(prefix="laplab-export-"))
+    try:
+        if fmt == "tar":
+            out = folder / f"{name}.tar.gz"
+            _laplab(["export", name, "--format", "tar", "--out", str(out)], folder)
+            return out, folder
+        onnx_dir = folder / f"{name}-onnx"
+        _laplab(["export", name, "--format", "onnx", "--out", str(onnx_dir)], folder)
+        out = folder / f"{name}-onnx.tar.gz"
+        import tarfile
+        with tarfile.open(out, "w:gz") as tar:
+            for path in sorted(onnx_dir.iterdir()):
+                tar.add(path, arcname=path.name)
+        return out, folder
+    except BaseException:
+        shutil.rmtree(folder, ignore_errors=True)
+        raise
+
+
+def import_archive(stream: BinaryIO, name: str | None, service, user) -> str:
+    """Import an uploaded archive as ``name`` (default: the exported name) owned by ``user``."""
+    from laplab.store.layout import ModelNameError, validate_model_name
+    folder = Path(tempfile.mkdtemp(prefix="laplab-import-"))
+    try:
+        path = folder / "upload.tar.gz"
+        with open(path, "wb") as out:
+            copied = 0
+            while chunk := stream.read(1 << 20):
+                copied += len(chunk)
+                if copied > MAX_IMPORT_BYTES:
+                    raise ExportError(f"the archive is larger than {MAX_IMPORT_BYTES >> 30} GiB")
+                out.write(chunk)
+        if name:
+            try:
+                validate_model_name(name)
+            except ModelNameError as exc:
+                raise ExportError(str(exc)) from None
+            if name in service.owners():
+                raise ExportError(f"a model named {name!r} already exists; import it under another name")
+        output = _laplab(["import", str(path)] + (["--name", name] if name else []), folder)
+        imported = output.split("imported model ", 1)[1].split("'")[1]
+        service.store.claim_model(imported, user.id, "imported")
+        return imported
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)

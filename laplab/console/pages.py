@@ -1,0 +1,129 @@
+"""The console's HTML pages (Jinja2) and its static files; the pages call the JSON API.
+
+Every page needs a user (a Bearer token or the session cookie), except the login page.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from fastapi import APIRouter, Depends, Form, HTTPException, Request
+from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
+from fastapi.templating import Jinja2Templates
+
+from laplab.console.auth import SESSION_COOKIE, NotLoggedIn, csrf_token, current_user, identify
+from laplab.jobs.db import User
+
+TEMPLATES = Jinja2Templates(directory=str(Path(__file__).parent / "templates"))
+STATIC_DIR = Path(__file__).parent / "static"
+router = APIRouter(include_in_schema=False)
+
+
+def _page(request: Request, template: str, user: User, **context) -> HTMLResponse:
+    session = getattr(request.state, "session", None)
+    token = csrf_token(request.app.state.secret, session) if session else ""
+    return TEMPLATES.TemplateResponse(request, template, {"user": user, "csrf": token, **context})
+
+
+def _defaults() -> dict:
+    from laplab.agents.hyperparameters import Hyperparameters
+    from laplab.env.metadata import ALGORITHMS, ALL_SENSORS, NETWORKS, ModelMetadata
+    return {"metadata": ModelMetadata().to_dict(), "hyperparameters": Hyperparameters().to_dict(),
+            "sensors": ALL_SENSORS, "networks": NETWORKS, "algorithms": ALGORITHMS}
+
+
+@router.get("/login", response_class=HTMLResponse)
+def login_page(request: Request, token: str | None = None):
+    if token:
+        return _login(request, token)
+    return TEMPLATES.TemplateResponse(request, "login.html", {"error": None})
+
+
+@router.post("/login", response_class=HTMLResponse)
+def login_form(request: Request, token: str = Form("")):
+    return _login(request, token.strip())
+
+
+def _login(request: Request, token: str):
+    user = request.app.state.store.user_for_token(token)
+    if user is None:
+        return TEMPLATES.TemplateResponse(request, "login.html", {"error": "unknown or expired token"}, status_code=401)
+    session = request.app.state.store.new_session(user.id)
+    response = RedirectResponse("/", status_code=303)
+    response.set_cookie(SESSION_COOKIE, session, httponly=True, samesite="strict", max_age=7 * 24 * 3600,
+                        secure=request.url.scheme == "https")
+    return response
+
+
+@router.post("/logout")
+def logout(request: Request, user: User = Depends(current_user)):
+    session = request.cookies.get(SESSION_COOKIE)
+    if session:
+        request.app.state.store.end_session(session)
+    response = RedirectResponse("/login", status_code=303)
+    response.delete_cookie(SESSION_COOKIE)
+    return response
+
+
+@router.get("/static/{path:path}")
+def static(path: str, user: User = Depends(current_user)):
+    target = (STATIC_DIR / path).resolve()
+    if STATIC_DIR.resolve() not in target.parents or not target.is_file():
+        raise HTTPException(404, "no such file")
+    return FileResponse(target, headers={"Cache-Control": "max-age=300"})
+
+
+@router.get("/", response_class=HTMLResponse)
+def models_page(request: Request):
+    user, _ = identify(request)
+    if user is None:
+        if "text/html" in request.headers.get("accept", ""):
+            return RedirectResponse("/login", status_code=303)
+        raise NotLoggedIn()
+    current_user(request)
+    return _page(request, "models.html", user, title="Models")
+
+
+@router.get("/create", response_class=HTMLResponse)
+def create_page(request: Request, clone: str | None = None, user: User = Depends(current_user)):
+    source = None
+    if clone:
+        service = request.app.state.service
+        if not service.can_see(user, clone):
+            raise HTTPException(404, f"no model named {clone!r} among your models")
+        from laplab.jobs.runner import models_dir
+        folder = models_dir() / clone
+        config = json.loads((folder / "laplab.json").read_text())
+        source = {"name": clone, "config": config, "reward": (folder / "reward_function.py").read_text()}
+    return _page(request, "create.html", user, title="Clone model" if clone else "Create model",
+                 defaults=_defaults(), source=source)
+
+
+@router.get("/models/{name}", response_class=HTMLResponse)
+def model_page(name: str, request: Request, user: User = Depends(current_user)):
+    if not request.app.state.service.can_see(user, name):
+        raise HTTPException(404, f"no model named {name!r} among your models")
+    return _page(request, "model.html", user, title=name, model=name)
+
+
+@router.get("/models/{name}/report", response_class=HTMLResponse)
+def report_page(name: str, request: Request, user: User = Depends(current_user)):
+    """The model's HTML report (``laplab report``), built in a child process."""
+    if not request.app.state.service.can_see(user, name):
+        raise HTTPException(404, f"no model named {name!r} among your models")
+    from laplab.console.exports import ExportError, _laplab
+    from laplab.jobs.runner import models_dir
+    try:
+        output = _laplab(["report", name], models_dir())
+    except ExportError as exc:
+        raise HTTPException(400, {"message": str(exc)}) from None
+    page = Path(output.strip().splitlines()[-1])
+    if not page.is_file():
+        raise HTTPException(500, "laplab report wrote no page")
+    return HTMLResponse(page.read_text(encoding="utf-8"))
+
+
+@router.get("/leaderboard", response_class=HTMLResponse)
+def leaderboard_page(request: Request, user: User = Depends(current_user)):
+    return _page(request, "leaderboard.html", user, title="Leaderboard")

@@ -1,0 +1,362 @@
+"""The console's service: models (folders + owners), the job scheduler and the live event hub.
+
+The scheduler runs in the server's event loop every ``TICK_S``: it collects ended jobs, tails the
+running jobs' ``events.jsonl`` and ``poses.json`` into the :class:`EventHub`, and starts queued jobs
+while fewer than ``workers`` run. Two jobs never share a model folder: a job waits while another
+job of its model runs.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from laplab.jobs.db import ACTIVE_STATUSES, Job, JobStore, User
+from laplab.jobs.runner import JobRunner, job_folder, models_dir
+from laplab.store.layout import ModelFolder, list_models
+
+TICK_S = 1.0 / 30.0
+LIST_TTL_S = 0.25
+TRAIN_KINDS = ("train", "clone", "resume")
+MODEL_STATUS = {"queued": "queued", "running": "training", "stopping": "stopping", "done": "ready",
+                "failed": "failed", "interrupted": "interrupted"}
+
+
+@dataclass
+class ModelStream:
+    """Live state of one model for its event streams."""
+
+    events: deque = field(default_factory=lambda: deque(maxlen=2000))  # (seq, kind, data)
+    seq: int = 0
+    poses: dict | None = None
+    poses_seq: int = 0
+
+
+class EventHub:
+    """Per-model events (iterations, status changes) and the latest poses, numbered for streams."""
+
+    def __init__(self):
+        self.streams: dict[str, ModelStream] = {}
+
+    def stream(self, model: str) -> ModelStream:
+        return self.streams.setdefault(model, ModelStream())
+
+    def publish(self, model: str, kind: str, data: dict) -> None:
+        stream = self.stream(model)
+        stream.seq += 1
+        stream.events.append((stream.seq, kind, data))
+
+    def set_poses(self, model: str, poses: dict) -> None:
+        stream = self.stream(model)
+        stream.poses, stream.poses_seq = poses, stream.poses_seq + 1
+
+
+def _iso(timestamp: float | None) -> str | None:
+    return None if timestamp is None else datetime.fromtimestamp(timestamp, timezone.utc).isoformat(timespec="seconds")
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+class ModelCatalog:
+    """Summaries of model folders, re-read only when one of their files changed."""
+
+    def __init__(self):
+        self._cache: dict[str, tuple[tuple, dict]] = {}
+
+    @staticmethod
+    def _files(folder: ModelFolder) -> tuple[Path, ...]:
+        return (folder.laplab_config, folder.model_metadata, folder.metrics_dir / "laplab-iterations.json",
+                folder.deepracer_checkpoints, folder.error_file, folder.metrics_dir / "evaluation")
+
+    def summary(self, name: str) -> dict:
+        folder = ModelFolder(models_dir() / name)
+        key = tuple(p.stat().st_mtime_ns if p.exists() else 0 for p in self._files(folder))
+        hit = self._cache.get(name)
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        config = _read_json(folder.laplab_config) or {}
+        metadata = _read_json(folder.model_metadata) or config.get("model_metadata") or {}
+        iterations = (_read_json(folder.metrics_dir / "laplab-iterations.json") or {}).get("iterations", [])
+        best = None
+        for row in iterations:
+            if row.get("best_lap_time") is not None:
+                best = row["best_lap_time"] if best is None else min(best, row["best_lap_time"])
+        best = _best_with_evaluations(folder, best)
+        created = folder.root.stat().st_mtime if folder.root.exists() else None
+        if folder.laplab_config.exists():
+            created = folder.laplab_config.stat().st_mtime
+        summary = {"name": name, "track": config.get("track"), "sensor": metadata.get("sensor"),
+                   "algorithm": metadata.get("training_algorithm"),
+                   "action_space_type": metadata.get("action_space_type"),
+                   "created": _iso(created), "best_lap_time": best, "iteration_count": len(iterations),
+                   "max_time_s": config.get("max_time_s"), "error": folder.read_error(),
+                   "evaluations": len(folder.list_evaluations()) if folder.exists() else 0,
+                   "exists": folder.laplab_config.exists() or folder.model_metadata.exists()}
+        self._cache[name] = (key, summary)
+        return summary
+
+    @staticmethod
+    def iterations(name: str) -> list[dict]:
+        folder = ModelFolder(models_dir() / name)
+        rows = (_read_json(folder.metrics_dir / "laplab-iterations.json") or {}).get("iterations", [])
+        keep = ("iteration", "episodes", "env_steps", "mean_reward", "mean_progress", "completion_rate",
+                "eval_progress", "best_lap_time", "eval_lap_time", "steps_per_second", "elapsed_s", "time_left_s")
+        return [{k: r.get(k) for k in keep} for r in rows]
+
+
+class ConsoleService:
+    """Everything the API routes call: who owns what, what runs, what changed."""
+
+    def __init__(self, store: JobStore, runner: JobRunner, workers: int):
+        self.store, self.runner, self.workers = store, runner, max(1, int(workers))
+        self.hub = EventHub()
+        self.catalog = ModelCatalog()
+        self._event_offsets: dict[int, int] = {}
+        self._poses_mtime: dict[int, int] = {}
+        self.interrupted_at_start = store.interrupt_running()
+        self._list_cache: dict[int, tuple[float, list[dict]]] = {}
+
+    # -- models ------------------------------------------------------------------------------------
+
+    def owners(self) -> dict[str, int]:
+        """Model name -> owner id; models made by the CLI belong to the admin."""
+        records = self.store.model_records()
+        admin = self.store.admin()
+        names = set(list_models(models_dir())) | set(records)
+        return {n: int(records[n]["owner"]) if n in records else (admin.id if admin else 0) for n in names}
+
+    def can_see(self, user: User, name: str) -> bool:
+        owner = self.owners().get(name)
+        return owner is not None and (user.is_admin or owner == user.id)
+
+    def model_status(self, name: str, summary: dict, jobs: list[Job] | None = None) -> tuple[str, Job | None]:
+        jobs = jobs if jobs is not None else self.store.jobs(model=name, kind=TRAIN_KINDS)
+        train_jobs = [j for j in jobs if j.kind in TRAIN_KINDS]
+        if train_jobs:
+            return MODEL_STATUS[train_jobs[-1].status], train_jobs[-1]
+        return ("failed" if summary.get("error") else "ready"), None
+
+    def describe(self, name: str, owner: int | None = None, jobs: list[Job] | None = None,
+                 records: dict | None = None) -> dict:
+        summary = dict(self.catalog.summary(name))
+        status, job = self.model_status(name, summary, jobs)
+        record = (records if records is not None else self.store.model_records()).get(name)
+        summary.update(status=status, description=record["description"] if record else "",
+                       owner=self._user_name(owner if owner is not None else self.owners().get(name)),
+                       progress=job.progress if job else (100.0 if status == "ready" else 0.0),
+                       job=job.to_dict() if job else None)
+        if not summary["exists"] and job is not None:  # queued: nothing on disk yet, show what was asked
+            meta = job.params.get("model_metadata") or {}
+            summary.update(track=job.params.get("track") or "classic_2018", sensor=meta.get("sensor", ["STATE"]),
+                           algorithm=meta.get("training_algorithm", "clipped_ppo"), max_time_s=job.params.get("max_time_s"))
+        if job is not None and job.error and status in ("failed", "interrupted"):
+            summary["error"] = summary.get("error") or job.error
+        if summary["created"] is None and record is not None:
+            summary["created"] = _iso(record["created"])
+        return summary
+
+    def _user_name(self, user_id: int | None) -> str | None:
+        user = self.store.user_by_id(user_id) if user_id is not None else None
+        return user.name if user else None
+
+    def visible_models(self, user: User) -> list[dict]:
+        """The models ``user`` sees, newest first (a list at most ``LIST_TTL_S`` old: many pages and
+        scripts polling at once cost one computation per interval, not one each)."""
+        now = time.monotonic()
+        hit = self._list_cache.get(user.id)
+        if hit is not None and now - hit[0] < LIST_TTL_S:
+            return hit[1]
+        models = self._visible_models(user)
+        self._list_cache[user.id] = (now, models)
+        return models
+
+    def models_changed(self) -> None:
+        """Drop the cached model lists (a model was added or removed outside a job)."""
+        self._list_cache.clear()
+
+    def _visible_models(self, user: User) -> list[dict]:
+        all_jobs = self.store.jobs(kind=TRAIN_KINDS)
+        by_model: dict[str, list[Job]] = {}
+        for job in all_jobs:
+            by_model.setdefault(job.model, []).append(job)
+        records = self.store.model_records()
+        out = [self.describe(name, owner, by_model.get(name, []), records) for name, owner in sorted(self.owners().items())
+               if user.is_admin or owner == user.id]
+        return sorted(out, key=lambda m: m["created"] or "", reverse=True)
+
+    def active_job(self, name: str) -> Job | None:
+        active = self.store.jobs(status=ACTIVE_STATUSES, model=name)
+        return active[0] if active else None
+
+    def delete_model(self, name: str) -> None:
+        for job in self.store.jobs(model=name):
+            shutil.rmtree(job_folder(job.id), ignore_errors=True)
+        shutil.rmtree(models_dir() / name, ignore_errors=True)
+        self.store.forget_model(name)
+        self._list_cache.clear()
+        self.hub.streams.pop(name, None)
+
+    # -- jobs ------------------------------------------------------------------------------------
+
+    def submit(self, kind: str, model: str, owner: int, params: dict, reward_source: str | None = None) -> Job:
+        job = self.store.add_job(kind, model, owner, params)
+        self._list_cache.clear()
+        folder = job_folder(job.id)
+        folder.mkdir(parents=True, exist_ok=True)
+        if reward_source is not None:
+            (folder / "reward_function.py").write_text(reward_source, encoding="utf-8")
+        self.hub.publish(model, "status", {"status": "queued", "job": job.id, "kind": kind})
+        return job
+
+    def stop(self, job: Job) -> None:
+        if job.status == "queued":
+            self.store.update_job(job.id, status="interrupted" if job.kind == "resume" else "failed",
+                                  finished=time.time(), error="stopped before it started")
+            self._publish_status(job.model, job.id, "stopped")
+            return
+        self.store.update_job(job.id, status="stopping")
+        self._publish_status(job.model, job.id, "stopping")
+        self.runner.stop(job)
+
+    def _publish_status(self, model: str, job_id: int, status: str, **extra) -> None:
+        self._list_cache.clear()
+        self.hub.publish(model, "status", {"status": status, "job": job_id, **extra})
+
+    def tick(self) -> None:
+        """One scheduler step (cheap: a few stats and small reads)."""
+        for finished in self.runner.poll():
+            self._finish(finished.job_id, finished.returncode)
+        for job in self.store.jobs(status=("running", "stopping")):
+            self._tail(job)
+        running = self.store.jobs(status=("running", "stopping"))
+        busy_models = {j.model for j in running}
+        free = self.workers - len(running)
+        for job in self.store.jobs(status=("queued",)):
+            if free <= 0:
+                break
+            if job.model in busy_models:
+                continue
+            self._start(job)
+            busy_models.add(job.model)
+            free -= 1
+
+    def _start(self, job: Job) -> None:
+        folder = job_folder(job.id)
+        folder.mkdir(parents=True, exist_ok=True)
+        try:
+            pid = self.runner.start(job)
+        except OSError as exc:
+            self.store.update_job(job.id, status="failed", finished=time.time(), error=f"could not start the job: {exc}")
+            self._publish_status(job.model, job.id, "failed")
+            return
+        self.store.update_job(job.id, status="running", started=time.time(), pid=pid, log_path=str(folder / "log.txt"))
+        self._publish_status(job.model, job.id, "training" if job.kind in TRAIN_KINDS else "running", kind=job.kind)
+
+    def _tail(self, job: Job) -> None:
+        folder = job_folder(job.id)
+        events = folder / "events.jsonl"
+        offset = self._event_offsets.get(job.id, 0)
+        try:
+            if events.stat().st_size > offset:
+                with open(events, "rb") as handle:
+                    handle.seek(offset)
+                    chunk = handle.read()
+                complete = chunk[:chunk.rfind(b"\n") + 1]
+                self._event_offsets[job.id] = offset + len(complete)
+                for line in complete.decode("utf-8", errors="replace").splitlines():
+                    self._on_event(job, json.loads(line))
+        except (OSError, ValueError):
+            pass
+        poses = folder / "poses.json"
+        try:
+            mtime = poses.stat().st_mtime_ns
+        except OSError:
+            return
+        if mtime != self._poses_mtime.get(job.id):
+            self._poses_mtime[job.id] = mtime
+            document = _read_json(poses)
+            if document:
+                self.hub.set_poses(job.model, document)
+
+    def _on_event(self, job: Job, event: dict) -> None:
+        if event.get("type") == "iteration":
+            report = event["report"]
+            total = report["elapsed_s"] + report["time_left_s"]
+            progress = 100.0 * report["elapsed_s"] / total if total > 0 else 0.0
+            self.store.update_job(job.id, progress=round(min(progress, 100.0), 2))
+            keep = {k: report.get(k) for k in ("iteration", "episodes", "env_steps", "mean_reward", "mean_progress",
+                                                "completion_rate", "eval_progress", "best_lap_time", "eval_lap_time",
+                                                "steps_per_second", "elapsed_s", "time_left_s")}
+            self.hub.publish(job.model, "iteration", {**keep, "job": job.id, "progress": progress, "t": event["t"]})
+
+    def _finish(self, job_id: int, returncode: int) -> None:
+        job = self.store.job(job_id)
+        if job is None:
+            return
+        self._tail(job)
+        result = _read_json(job_folder(job_id) / "result.json") or {}
+        status = result.get("status")
+        error = result.get("error")
+        if status not in ("done", "failed"):
+            status = "failed"
+            error = error or _death_reason(returncode, job_folder(job_id) / "log.txt")
+        self.store.update_job(job_id, status=status, finished=time.time(), error=error, result=result or None,
+                              progress=100.0 if status == "done" else job.progress)
+        self._event_offsets.pop(job_id, None)
+        self._poses_mtime.pop(job_id, None)
+        target = models_dir() / job.model
+        if job.kind in ("train", "clone") and target.is_dir() and not any(target.iterdir()):
+            target.rmdir()  # validation failed before anything was written
+        model_status = MODEL_STATUS[status] if job.kind in TRAIN_KINDS else status
+        self._publish_status(job.model, job_id, model_status, kind=job.kind, error=error)
+
+
+def _best_with_evaluations(folder: ModelFolder, best: float | None) -> float | None:
+    """The best lap of training and of the model's evaluations (s), None without a lap."""
+    if not folder.exists():
+        return best
+    from laplab.evaluate.trials import read_evaluation_summary
+    for stamp in folder.list_evaluations():
+        try:
+            document = read_evaluation_summary(folder, stamp) or {}
+        except Exception:  # noqa: BLE001 - a damaged summary leaves the list as it is
+            continue
+        lap = (document.get("summary") or {}).get("best_lap")
+        if lap is not None:
+            best = lap if best is None else min(best, lap)
+    return best
+
+
+def _death_reason(returncode: int, log: Path) -> str:
+    import signal
+    number = -returncode if returncode < 0 else returncode - 128 if 128 < returncode < 160 else None
+    if number is not None:  # killed by a signal (bubblewrap reports its child's as 128 + N)
+        try:
+            name = signal.Signals(number).name
+        except ValueError:
+            name = f"signal {number}"
+        why = {"SIGXCPU": "it used up its CPU-time limit", "SIGKILL": "it was killed (memory or a stop)"}.get(name, name)
+        return f"the job process ended by {name}: {why}"
+    tail = ""
+    try:
+        tail = log.read_text(errors="replace").strip().splitlines()[-1]
+    except (OSError, IndexError):
+        pass
+    return f"the job process exited with status {returncode}" + (f": {tail}" if tail else "")
+
+
+def default_workers() -> int:
+    """What this machine can run: one training per two cores (each uses a core plus its learner)."""
+    return max(1, (os.cpu_count() or 2) // 2)

@@ -1,0 +1,141 @@
+"""How a job process is confined: resource limits, a clean environment, and (on Linux with
+bubblewrap) a filesystem view without the console's database, secret key or other users' models.
+
+Inside the sandbox ``$LAPLAB_HOME`` is ``/tmp/laplab``, on a fresh tmpfs holding only what the job needs:
+
+    /tmp/laplab/job            the job's folder (spec, log, events, poses, result)       read-write
+    /tmp/laplab/models/NAME    the model the job writes                                   read-write
+    /tmp/laplab/models/SOURCE  the model a clone starts from                              read-only
+    /tmp/laplab/tracks         imported tracks                                            read-only
+    /tmp/laplab/cache          this owner's race-line cache (never shared between users)  read-write
+
+The rest of the machine is read-only, ``/tmp`` is private, ``/root`` and ``/home`` are hidden except
+for the Python installation, there is no network, a new PID namespace (no ``/proc`` of the server)
+and no capabilities. See docs/console.md for the threat model.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import resource
+import shutil
+import signal
+import subprocess
+import sys
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+GIB = 1024 ** 3
+SANDBOX_HOME = "/tmp/laplab"  # on the private /tmp (bwrap can only make folders on a tmpfs)
+
+
+@dataclass(frozen=True)
+class JobLimits:
+    """Per-job limits: address space (bytes), CPU time (s), largest file written (bytes)."""
+
+    memory_bytes: int = 6 * GIB
+    cpu_seconds: int = 4 * 3600
+    file_bytes: int = 4 * GIB
+
+
+@dataclass(frozen=True)
+class Mounts:
+    """Real paths a job may see: read-write and read-only, each real path -> path inside."""
+
+    writable: dict[str, str]
+    readonly: dict[str, str]
+
+
+@lru_cache(maxsize=1)
+def bubblewrap_works() -> bool:
+    """True when ``bwrap`` exists and can build the namespace this module uses (tested once)."""
+    if sys.platform != "linux" or shutil.which("bwrap") is None:
+        return False
+    command = _bwrap_prefix(Mounts({}, {})) + ["/bin/true"]
+    try:
+        return subprocess.run(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL, timeout=20).returncode == 0
+    except (OSError, subprocess.SubprocessError):
+        return False
+
+
+def _python_dirs() -> list[str]:
+    """Folders the interpreter and laplab load code from (rebound read-only over hidden homes)."""
+    dirs = {sys.prefix, sys.base_prefix, str(Path(sys.executable).resolve().parent.parent)}
+    dirs |= {p for p in sys.path if p and os.path.isdir(p)}
+    import laplab
+    dirs.add(str(Path(laplab.__file__).resolve().parent.parent))
+    return sorted(d for d in dirs if d.startswith(("/root", "/home")))
+
+
+def _bwrap_prefix(mounts: Mounts) -> list[str]:
+    cmd = ["bwrap", "--ro-bind", "/", "/", "--dev", "/dev", "--proc", "/proc", "--tmpfs", "/tmp",
+           "--tmpfs", "/var/tmp", "--tmpfs", "/dev/shm", "--unshare-all", "--die-with-parent", "--cap-drop", "ALL"]
+    for hidden in ("/root", "/home", "/run", "/var/run"):
+        if os.path.isdir(hidden) and not os.path.islink(hidden):
+            cmd += ["--tmpfs", hidden]
+    for folder in _python_dirs():
+        cmd += ["--ro-bind", folder, folder]
+    from laplab.jobs.db import laplab_home
+    home = laplab_home()
+    if home.exists():
+        cmd += ["--tmpfs", str(home.resolve())]  # the real home (DB, secret, models) vanishes
+    cmd += ["--tmpfs", SANDBOX_HOME, "--dir", f"{SANDBOX_HOME}/models"]
+    for real, inside in mounts.readonly.items():
+        cmd += ["--ro-bind", real, inside]
+    for real, inside in mounts.writable.items():
+        cmd += ["--bind", real, inside]
+    return cmd
+
+
+def clean_environment(extra: dict[str, str] | None = None, sandboxed: bool = True) -> dict[str, str]:
+    """The only variables a job sees: no tokens, no keys, no server settings."""
+    env = {"PATH": "/usr/local/bin:/usr/bin:/bin", "LANG": "C.UTF-8", "PYTHONUNBUFFERED": "1",
+           "PYTHONDONTWRITEBYTECODE": "1", "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1")}
+    pythonpath = os.environ.get("PYTHONPATH")
+    if pythonpath:
+        env["PYTHONPATH"] = pythonpath
+    env["HOME"] = f"{SANDBOX_HOME}/job" if sandboxed else os.environ.get("HOME", "/tmp")
+    env.update(extra or {})
+    return env
+
+
+def _set_parent_death_signal() -> None:
+    """The job dies with the server (a SIGKILLed server leaves no orphan writing a model)."""
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
+def limits_preexec(limits: JobLimits):
+    def apply() -> None:
+        _set_parent_death_signal()
+        resource.setrlimit(resource.RLIMIT_AS, (limits.memory_bytes, limits.memory_bytes))
+        resource.setrlimit(resource.RLIMIT_CPU, (limits.cpu_seconds, limits.cpu_seconds + 10))
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limits.file_bytes, limits.file_bytes))
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    return apply
+
+
+def confined_command(command: list[str], mounts: Mounts, use_bubblewrap: bool | None = None) -> list[str]:
+    """``command`` wrapped in bubblewrap with ``mounts`` (or unchanged when bubblewrap is off)."""
+    if use_bubblewrap is None:
+        use_bubblewrap = bubblewrap_works()
+    if not use_bubblewrap:
+        return command
+    return _bwrap_prefix(mounts) + ["--chdir", f"{SANDBOX_HOME}/job", "--"] + command
+
+
+def start_confined(command: list[str], mounts: Mounts, limits: JobLimits, log_path: Path,
+                   env: dict[str, str], use_bubblewrap: bool | None = None) -> subprocess.Popen:
+    """Start ``command`` confined, stdout and stderr appended to ``log_path``, in its own session."""
+    if use_bubblewrap is None:
+        use_bubblewrap = bubblewrap_works()
+    with open(log_path, "ab") as log:
+        return subprocess.Popen(confined_command(command, mounts, use_bubblewrap), stdin=subprocess.DEVNULL,
+                                stdout=log, stderr=subprocess.STDOUT, env=env, close_fds=True,
+                                start_new_session=True, preexec_fn=limits_preexec(limits),
+                                cwd=None if use_bubblewrap else str(log_path.parent))

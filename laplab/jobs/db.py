@@ -1,0 +1,285 @@
+"""The console's job store: users, login tokens, sessions, model owners and jobs in SQLite.
+
+The database is ``$LAPLAB_HOME/laplab.db`` in WAL mode (readers never block the writer; the server
+and ``laplab users add`` share it). Tokens and session ids are stored only hashed: login tokens with
+argon2 (``TOKEN_ID.SECRET``: the id finds the row, argon2 checks the secret), session ids (random,
+256 bits) with SHA-256. Job workers never open this file (see docs/console.md).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import secrets
+import sqlite3
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+JOB_KINDS = ("train", "clone", "evaluate", "resume")
+JOB_STATUSES = ("queued", "running", "stopping", "done", "failed", "interrupted")
+ACTIVE_STATUSES = ("queued", "running", "stopping")
+SESSION_LIFETIME_S = 7 * 24 * 3600.0
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS users (
+    id INTEGER PRIMARY KEY, name TEXT UNIQUE NOT NULL, is_admin INTEGER NOT NULL DEFAULT 0,
+    created REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS tokens (
+    id TEXT PRIMARY KEY, user_id INTEGER NOT NULL REFERENCES users(id), hash TEXT NOT NULL,
+    label TEXT NOT NULL, created REAL NOT NULL, expires REAL);
+CREATE TABLE IF NOT EXISTS sessions (
+    hash TEXT PRIMARY KEY, user_id INTEGER NOT NULL REFERENCES users(id), created REAL NOT NULL,
+    expires REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS models (
+    name TEXT PRIMARY KEY, owner INTEGER NOT NULL REFERENCES users(id), description TEXT NOT NULL DEFAULT '',
+    created REAL NOT NULL);
+CREATE TABLE IF NOT EXISTS jobs (
+    id INTEGER PRIMARY KEY, kind TEXT NOT NULL, model TEXT NOT NULL, owner INTEGER NOT NULL,
+    status TEXT NOT NULL, progress REAL NOT NULL DEFAULT 0, params TEXT NOT NULL, created REAL NOT NULL,
+    started REAL, finished REAL, pid INTEGER, log_path TEXT, error TEXT, result TEXT);
+CREATE INDEX IF NOT EXISTS jobs_model ON jobs(model);
+CREATE INDEX IF NOT EXISTS jobs_status ON jobs(status);
+"""
+
+
+class StoreError(ValueError):
+    """A request the store refuses (unknown user, duplicate name...), with a complete message."""
+
+
+@dataclass(frozen=True)
+class User:
+    id: int
+    name: str
+    is_admin: bool
+
+
+@dataclass(frozen=True)
+class Job:
+    id: int
+    kind: str
+    model: str
+    owner: int
+    status: str
+    progress: float
+    params: dict
+    created: float
+    started: float | None
+    finished: float | None
+    pid: int | None
+    log_path: str | None
+    error: str | None
+    result: dict | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"id": self.id, "kind": self.kind, "model": self.model, "status": self.status,
+                "progress": self.progress, "created": self.created, "started": self.started,
+                "finished": self.finished, "error": self.error, "result": self.result}
+
+
+def laplab_home() -> Path:
+    return Path(os.environ.get("LAPLAB_HOME") or "~/.laplab").expanduser()
+
+
+def database_path() -> Path:
+    return laplab_home() / "laplab.db"
+
+
+def _sha256(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _hasher():
+    from argon2 import PasswordHasher
+    return PasswordHasher()
+
+
+class JobStore:
+    """Thread-safe access to the console database (one connection, serialised by a lock)."""
+
+    def __init__(self, path: str | os.PathLike | None = None):
+        self.path = Path(path) if path is not None else database_path()
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.RLock()
+        self._db = sqlite3.connect(self.path, check_same_thread=False, timeout=30.0, isolation_level=None)
+        self._db.row_factory = sqlite3.Row
+        self._db.execute("PRAGMA journal_mode=WAL")
+        self._db.execute("PRAGMA synchronous=NORMAL")
+        self._db.execute("PRAGMA foreign_keys=ON")
+        self._db.executescript(_SCHEMA)
+        os.chmod(self.path, 0o600)
+        self._verified: dict[str, tuple[int, float | None]] = {}  # sha256(token) -> (user id, expiry)
+
+    def close(self) -> None:
+        with self._lock:
+            self._db.close()
+
+    def _execute(self, sql: str, args: tuple = ()) -> sqlite3.Cursor:
+        with self._lock:
+            return self._db.execute(sql, args)
+
+    def _rows(self, sql: str, args: tuple = ()) -> list[sqlite3.Row]:
+        with self._lock:
+            return self._db.execute(sql, args).fetchall()
+
+    def integrity_ok(self) -> bool:
+        return self._rows("PRAGMA integrity_check")[0][0] == "ok"
+
+    # -- users and tokens ------------------------------------------------------------------------
+
+    def add_user(self, name: str, is_admin: bool = False, token: str | None = None,
+                 token_label: str = "login") -> tuple[User, str]:
+        """Create user ``name`` with a fresh login token; returns the user and the token (shown once)."""
+        if not name or not all(c.isalnum() or c in "-_." for c in name) or len(name) > 64:
+            raise StoreError(f"invalid user name {name!r}: 1 to 64 letters, digits, '-', '_' or '.'")
+        with self._lock:
+            if self._rows("SELECT 1 FROM users WHERE name=?", (name,)):
+                raise StoreError(f"a user named {name!r} already exists")
+            cur = self._execute("INSERT INTO users(name, is_admin, created) VALUES (?,?,?)",
+                                (name, int(is_admin), time.time()))
+            user = User(int(cur.lastrowid), name, is_admin)
+        return user, self.add_token(user.id, token_label, token=token)
+
+    def add_token(self, user_id: int, label: str, token: str | None = None, lifetime_s: float | None = None) -> str:
+        """A new token ``ID.SECRET`` for ``user_id``; ``token`` (e.g. LAPLAB_ADMIN_TOKEN) is used as is."""
+        token_id = secrets.token_hex(6)
+        if token is None:
+            token = f"{token_id}.{secrets.token_urlsafe(24)}"
+        expires = None if lifetime_s is None else time.time() + lifetime_s
+        self._execute("INSERT INTO tokens(id, user_id, hash, label, created, expires) VALUES (?,?,?,?,?,?)",
+                      (token_id, user_id, _hasher().hash(token), label, time.time(), expires))
+        return token
+
+    def user_for_token(self, token: str) -> User | None:
+        """The user a token logs in, or None. Verified tokens are remembered in memory (by SHA-256)
+        so argon2's deliberate slowness is paid once per token and server run."""
+        if not token or len(token) > 512:
+            return None
+        key = _sha256(token)
+        hit = self._verified.get(key)
+        if hit is not None and (hit[1] is None or hit[1] > time.time()):
+            return self.user_by_id(hit[0])
+        from argon2.exceptions import InvalidHashError, VerificationError
+        head = token.split(".", 1)[0]
+        rows = self._rows("SELECT * FROM tokens WHERE id=?", (head,)) if "." in token else []
+        rows = rows or self._rows("SELECT * FROM tokens WHERE label='admin-env'")
+        hasher = _hasher()
+        for row in rows:
+            if row["expires"] is not None and row["expires"] < time.time():
+                continue
+            try:
+                hasher.verify(row["hash"], token)
+            except (VerificationError, InvalidHashError):
+                continue
+            self._verified[key] = (int(row["user_id"]), row["expires"])
+            return self.user_by_id(int(row["user_id"]))
+        return None
+
+    def user_by_id(self, user_id: int) -> User | None:
+        rows = self._rows("SELECT * FROM users WHERE id=?", (user_id,))
+        return User(rows[0]["id"], rows[0]["name"], bool(rows[0]["is_admin"])) if rows else None
+
+    def user_by_name(self, name: str) -> User | None:
+        rows = self._rows("SELECT * FROM users WHERE name=?", (name,))
+        return User(rows[0]["id"], rows[0]["name"], bool(rows[0]["is_admin"])) if rows else None
+
+    def users(self) -> list[User]:
+        return [User(r["id"], r["name"], bool(r["is_admin"])) for r in self._rows("SELECT * FROM users ORDER BY id")]
+
+    def admin(self) -> User | None:
+        rows = self._rows("SELECT * FROM users WHERE is_admin=1 ORDER BY id LIMIT 1")
+        return User(rows[0]["id"], rows[0]["name"], True) if rows else None
+
+    # -- sessions --------------------------------------------------------------------------------
+
+    def new_session(self, user_id: int) -> str:
+        session = secrets.token_urlsafe(32)
+        now = time.time()
+        self._execute("INSERT INTO sessions(hash, user_id, created, expires) VALUES (?,?,?,?)",
+                      (_sha256(session), user_id, now, now + SESSION_LIFETIME_S))
+        return session
+
+    def user_for_session(self, session: str) -> User | None:
+        if not session or len(session) > 256:
+            return None
+        rows = self._rows("SELECT user_id, expires FROM sessions WHERE hash=?", (_sha256(session),))
+        if not rows or rows[0]["expires"] < time.time():
+            return None
+        return self.user_by_id(int(rows[0]["user_id"]))
+
+    def end_session(self, session: str) -> None:
+        self._execute("DELETE FROM sessions WHERE hash=?", (_sha256(session),))
+
+    # -- model owners ------------------------------------------------------------------------------
+
+    def claim_model(self, name: str, owner: int, description: str = "") -> None:
+        """Record ``owner`` of model ``name``; refuses a name already recorded."""
+        try:
+            self._execute("INSERT INTO models(name, owner, description, created) VALUES (?,?,?,?)",
+                          (name, owner, description, time.time()))
+        except sqlite3.IntegrityError:
+            raise StoreError(f"a model named {name!r} already exists; models are immutable: pick another "
+                             f"name or clone it") from None
+
+    def model_records(self) -> dict[str, sqlite3.Row]:
+        return {r["name"]: r for r in self._rows("SELECT * FROM models")}
+
+    def forget_model(self, name: str) -> None:
+        with self._lock:
+            self._execute("DELETE FROM jobs WHERE model=?", (name,))
+            self._execute("DELETE FROM models WHERE name=?", (name,))
+
+    # -- jobs ------------------------------------------------------------------------------------
+
+    def add_job(self, kind: str, model: str, owner: int, params: dict) -> Job:
+        if kind not in JOB_KINDS:
+            raise StoreError(f"unknown job kind {kind!r}")
+        cur = self._execute("INSERT INTO jobs(kind, model, owner, status, params, created) VALUES (?,?,?,?,?,?)",
+                            (kind, model, owner, "queued", json.dumps(params), time.time()))
+        return self.job(int(cur.lastrowid))
+
+    def job(self, job_id: int) -> Job | None:
+        rows = self._rows("SELECT * FROM jobs WHERE id=?", (job_id,))
+        return _job(rows[0]) if rows else None
+
+    def jobs(self, status: tuple[str, ...] | None = None, model: str | None = None, kind: tuple[str, ...] | None = None) -> list[Job]:
+        sql, args = "SELECT * FROM jobs WHERE 1=1", []
+        if status:
+            sql += f" AND status IN ({','.join('?' * len(status))})"
+            args += list(status)
+        if kind:
+            sql += f" AND kind IN ({','.join('?' * len(kind))})"
+            args += list(kind)
+        if model is not None:
+            sql += " AND model=?"
+            args.append(model)
+        return [_job(r) for r in self._rows(sql + " ORDER BY id", tuple(args))]
+
+    def update_job(self, job_id: int, **values: Any) -> None:
+        allowed = {"status", "progress", "started", "finished", "pid", "log_path", "error", "result"}
+        if not values or set(values) - allowed:
+            raise StoreError(f"cannot update job fields {sorted(set(values) - allowed)}")
+        if "status" in values and values["status"] not in JOB_STATUSES:
+            raise StoreError(f"unknown job status {values['status']!r}")
+        if "result" in values and values["result"] is not None:
+            values["result"] = json.dumps(values["result"])
+        columns = ", ".join(f"{k}=?" for k in values)
+        self._execute(f"UPDATE jobs SET {columns} WHERE id=?", (*values.values(), job_id))
+
+    def interrupt_running(self) -> list[Job]:
+        """At server start: jobs a dead server left running or stopping become ``interrupted``."""
+        with self._lock:
+            stale = self.jobs(status=("running", "stopping"))
+            for job in stale:
+                self.update_job(job.id, status="interrupted", finished=time.time(),
+                                error="the server stopped while this job ran; resume it to continue")
+        return stale
+
+
+def _job(row: sqlite3.Row) -> Job:
+    return Job(int(row["id"]), row["kind"], row["model"], int(row["owner"]), row["status"], float(row["progress"]),
+               json.loads(row["params"]), row["created"], row["started"], row["finished"], row["pid"],
+               row["log_path"], row["error"], json.loads(row["result"]) if row["result"] else None)

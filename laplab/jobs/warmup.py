@@ -1,0 +1,71 @@
+"""A trusted warm-up of numba's compiled-code cache, copied into each user's job cache.
+
+Jobs keep numba's cache per user (the cache is code: a shared one would let one user's job plant
+code in another's). A new user's first job would then compile every kernel (tens of seconds). The
+server runs this module once per ``$LAPLAB_HOME`` with laplab's own code only (a two-episode
+training with the default reward in a scratch folder) and seeds each new user's cache from it.
+
+``python -m laplab.jobs.warmup CACHE_DIR`` (with ``NUMBA_CACHE_DIR=CACHE_DIR``).
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+READY_MARKER = "laplab-warmup-done"
+
+
+def trusted_cache(home: Path) -> Path:
+    return home / "sandbox" / "trusted-numba"
+
+
+def seed(target: Path, home: Path) -> bool:
+    """Copy the trusted cache into ``target`` (a user's numba cache) if that does not exist yet."""
+    source = trusted_cache(home)
+    if target.exists() or not (source / READY_MARKER).exists():
+        return False
+    staging = target.with_name(target.name + ".seeding")
+    shutil.rmtree(staging, ignore_errors=True)
+    shutil.copytree(source, staging)
+    try:
+        staging.rename(target)
+    except OSError:
+        shutil.rmtree(staging, ignore_errors=True)
+    return True
+
+
+def start_warmup(home: Path) -> subprocess.Popen | None:
+    """Start the warm-up in the background unless it is done (returns the process, or None)."""
+    from laplab.jobs.confinement import clean_environment
+    cache = trusted_cache(home)
+    if (cache / READY_MARKER).exists():
+        return None
+    cache.mkdir(parents=True, exist_ok=True)
+    env = clean_environment({"NUMBA_CACHE_DIR": str(cache)}, sandboxed=False)
+    return subprocess.Popen([sys.executable, "-m", "laplab.jobs.warmup", str(cache)], env=env,
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    import os
+    from dataclasses import replace
+    cache = Path((argv or sys.argv[1:])[0])
+    with tempfile.TemporaryDirectory(prefix="laplab-warmup-") as scratch:
+        os.environ["LAPLAB_HOME"] = scratch
+        from laplab.train.config import TrainConfig
+        from laplab.train.jobs import create_training
+        config = replace(TrainConfig(), max_episodes=2, max_time_s=600.0,
+                         hyperparameters={**TrainConfig().hyper().to_dict(), "num_episodes_between_training": 2,
+                                          "num_epochs": 3, "batch_size": 32})
+        create_training("warmup", config).run()
+    (cache / READY_MARKER).write_text("ok\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

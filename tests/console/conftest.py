@@ -1,0 +1,121 @@
+"""Fixtures of the console tests: a real server (uvicorn on 127.0.0.1, a free port) over a fresh
+``$LAPLAB_HOME``, users with tokens, and tiny models made with laplab's own training calls."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import pytest
+
+pytest.importorskip("fastapi")
+pytest.importorskip("uvicorn")
+httpx = pytest.importorskip("httpx")
+
+ADMIN_TOKEN = "admin-test-token-0123456789"
+TINY_HYPERPARAMETERS = {"num_episodes_between_training": 2, "num_epochs": 3, "batch_size": 32}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class RunningConsole:
+    url: str
+    app: object
+    admin: "httpx.Client"
+
+    def client(self, token: str | None) -> "httpx.Client":
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        return httpx.Client(base_url=self.url, headers=headers, timeout=120.0)
+
+    def add_user(self, name: str) -> "httpx.Client":
+        _, token = self.app.state.store.add_user(name)
+        return self.client(token)
+
+    def wait_for(self, client, name: str, statuses: tuple[str, ...], timeout_s: float = 240.0) -> dict:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            model = client.get(f"/api/models/{name}").json()
+            if model["status"] in statuses:
+                return model
+            time.sleep(0.5)
+        raise AssertionError(f"{name} did not reach {statuses} within {timeout_s} s: {model}")
+
+
+@contextmanager
+def serve(home, workers: int = 2, **kwargs):
+    """A console over ``home`` on a free port; stops it (and its jobs) on exit."""
+    import uvicorn
+
+    from laplab.console.app import create_app
+    mp = pytest.MonkeyPatch()
+    mp.setenv("LAPLAB_HOME", str(home))
+    mp.setenv("LAPLAB_ADMIN_TOKEN", ADMIN_TOKEN)
+    try:
+        app = create_app(workers, **{"warm_cache": False, **kwargs})  # jobs compile their own (less load)
+        port = free_port()
+        server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+        thread = threading.Thread(target=server.run, daemon=True)
+        thread.start()
+        deadline = time.monotonic() + 30
+        while not server.started:
+            assert time.monotonic() < deadline, "the console did not start"
+            time.sleep(0.05)
+        url = f"http://127.0.0.1:{port}"
+        admin = httpx.Client(base_url=url, headers={"Authorization": f"Bearer {ADMIN_TOKEN}"}, timeout=120.0)
+        try:
+            yield RunningConsole(url, app, admin)
+        finally:
+            admin.close()
+            server.should_exit = True
+            thread.join(60)
+            app.state.store.close()
+    finally:
+        mp.undo()
+
+
+@pytest.fixture(scope="session")
+def serve_console():
+    """The context manager :func:`serve` (for tests that need their own server settings)."""
+    return serve
+
+
+@pytest.fixture(scope="module")
+def console(tmp_path_factory):
+    with serve(tmp_path_factory.mktemp("console-home")) as running:
+        yield running
+
+
+@pytest.fixture(scope="session")
+def admin_token() -> str:
+    return ADMIN_TOKEN
+
+
+@pytest.fixture(scope="session")
+def make_model():
+    """``make_model(name, reward_source=None)``: see :func:`create_tiny_model`."""
+    return create_tiny_model
+
+
+def create_tiny_model(name: str, reward_source: str | None = None):
+    """A real model folder (initial checkpoint, no iterations) made by laplab's create_training."""
+    from dataclasses import replace
+
+    from laplab.train.config import TrainConfig
+    from laplab.train.jobs import create_training
+    config = replace(TrainConfig(), hyperparameters={**TrainConfig().hyper().to_dict(), **TINY_HYPERPARAMETERS},
+                     max_time_s=5.0)
+    if reward_source is not None:
+        import tempfile
+        from pathlib import Path
+        path = Path(tempfile.mkdtemp()) / "reward_function.py"
+        path.write_text(reward_source)
+        config = replace(config, reward_path=str(path))
+    create_training(name, config)
