@@ -22,18 +22,6 @@ POSES_HZ = 15.0
 CAMERA_HZ = 2.0
 
 
-def camera_frame(obs):
-    """The newest camera frame (120, 160) uint8 of the first car, or None for models without a camera
-    (observations: ``(E, C, H, W)`` uint8, or a dict holding one such array per camera sensor)."""
-    import numpy as np
-    if isinstance(obs, dict):
-        from laplab.env.metadata import CAMERA_SENSORS
-        obs = next((v for k, v in obs.items() if k in CAMERA_SENSORS), None)
-    if not isinstance(obs, np.ndarray) or obs.ndim != 4 or obs.dtype != np.uint8 or not len(obs):
-        return None
-    return obs[0, -1]
-
-
 class JobFiles:
     """The files of one job folder, written atomically where a reader may look at any time."""
 
@@ -78,81 +66,47 @@ class JobFiles:
         temporary.replace(self.result)
 
 
-def _live_trainer_class():
-    """A Trainer that also publishes the training cars' poses (an isolated per-step hook: it wraps
-    the policy the trainer calls once per simulator step, and leaves the trainer's code alone)."""
-    from laplab.train.trainer import Trainer
+class LiveFeed:
+    """A trainer listener for the console's live view: the training cars' poses (model origins, x m,
+    y m, yaw rad) at up to 15 Hz and, for camera models, car 0's grey camera frame at 2 Hz."""
 
-    class LiveTrainer(Trainer):
-        pose_sink = None
-        camera_sink = None
-        _last_pose_time = 0.0
-        _last_camera_time = 0.0
-        _pose_seq = 0
+    def __init__(self, files: JobFiles, trainer):
+        self.files = files
+        self.camera = None
+        if trainer.metadata.camera is not None:
+            from laplab.sensors.camera import camera_for_sensor
+            self.camera = camera_for_sensor(trainer.metadata.camera)[0]
+            self.track = trainer.track
+            self._texture = None
+        self._last_pose_time = self._last_camera_time = 0.0
+        self._seq = 0
 
-        def _policy(self, deterministic: bool):
-            act = super()._policy(deterministic)
-            sim = self.eval_sim if deterministic else self.sim
-
-            def act_and_publish(obs):
-                now = time.monotonic()
-                if self.pose_sink is not None and now - self._last_pose_time >= 1.0 / POSES_HZ:
-                    self._last_pose_time = now
-                    self._pose_seq += 1
-                    st = sim.state
-                    self.pose_sink({"seq": self._pose_seq, "t": time.time(), "evaluation": deterministic,
+    def on_poses(self, frame) -> None:
+        now = time.monotonic()
+        if now - self._last_pose_time >= 1.0 / POSES_HZ:
+            self._last_pose_time = now
+            self._seq += 1
+            self.files.write_poses({"seq": self._seq, "t": time.time(), "evaluation": False,
                                     "cars": [[round(float(x), 3), round(float(y), 3), round(float(h), 3)]
-                                             for x, y, h in zip(st.x, st.y, st.yaw)]})
-                if self.camera_sink is not None and not deterministic and now - self._last_camera_time >= 1.0 / CAMERA_HZ:
-                    self._last_camera_time = now
-                    frame = camera_frame(obs)
-                    if frame is not None:
-                        self.camera_sink(frame)
-                return act(obs)
-            return act_and_publish
-
-    return LiveTrainer
-
-
-def _new_trainer(name: str, config, init_weights=None):
-    """:func:`laplab.train.jobs.create_training` for a folder the server made (empty) for this job."""
-    from laplab.store.layout import model_folder
-    from laplab.train.errors import JobError
-    from laplab.train.jobs import load_and_validate_reward, reward_file
-    from laplab.train.trainer import load_weights_only
-    from laplab.track.registry import load_track
-
-    folder = model_folder(name)
-    if folder.exists() and any(folder.root.iterdir()):
-        raise JobError(f"a model named {name!r} already exists; models are immutable")
-    load_track(config.track)
-    reward_fn = load_and_validate_reward(config)
-    folder.create()
-    folder.write_model_metadata(config.metadata().to_dict())
-    folder.write_hyperparameters(config.hyper().to_dict())
-    folder.write_reward_function(reward_file(config).read_text())
-    folder.write_laplab_config(config.to_dict())
-    trainer = _live_trainer_class()(folder, config, reward_fn)
-    if init_weights is not None:
-        load_weights_only(trainer.learner, init_weights)
-    trainer.save_initial_checkpoint()
-    return trainer
-
-
-def _resumed_trainer(name: str, max_time_s: float | None):
-    from laplab.train.jobs import resume_training
-    trainer = resume_training(name, max_time_s)
-    trainer.__class__ = _live_trainer_class()  # same state, plus the pose hook (no second simulator)
-    return trainer
+                                             for x, y, h in frame.poses]})
+        if self.camera is not None and now - self._last_camera_time >= 1.0 / CAMERA_HZ:
+            self._last_camera_time = now
+            from laplab.sensors.camera import render_camera
+            if self._texture is None:
+                from laplab.sensors.texture import build_track_texture
+                self._texture = build_track_texture(self.track)
+            self.files.write_camera(render_camera(self._texture, frame.poses[:1], self.camera)[0])
 
 
 def _train(files: JobFiles, spec: dict) -> None:
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import clone_config
 
+    from laplab.train.jobs import create_training_in_place, resume_training
+
     kind, name, params = spec["kind"], spec["model"], spec["params"]
     if kind == "resume":
-        trainer = _resumed_trainer(name, params.get("max_time_s"))
+        trainer = resume_training(name, params.get("max_time_s"))
     else:
         reward_path = str(files.folder / "reward_function.py") if (files.folder / "reward_function.py").exists() else None
         values = {k: params[k] for k in ("track", "model_metadata", "hyperparameters", "max_time_s", "max_episodes", "seed")
@@ -161,12 +115,10 @@ def _train(files: JobFiles, spec: dict) -> None:
             values["reward_path"] = reward_path
         if kind == "clone":
             config, weights = clone_config(params["source"], values)
-            trainer = _new_trainer(name, config, init_weights=weights)
+            trainer = create_training_in_place(name, config, init_weights=weights)
         else:
-            trainer = _new_trainer(name, replace(TrainConfig(), **values))
-    trainer.pose_sink = files.write_poses
-    if trainer.metadata.camera is not None:
-        trainer.camera_sink = files.write_camera
+            trainer = create_training_in_place(name, replace(TrainConfig(), **values))
+    trainer.subscribe(LiveFeed(files, trainer))
     files.event("started", iteration=trainer.iteration)
 
     def on_iteration(report) -> None:

@@ -14,7 +14,7 @@ from laplab.reward.loader import RewardFunction, load_reward_function
 from laplab.reward.validate import validate_reward_function
 from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import ModelFolder, model_folder, validate_model_name
-from laplab.store.lock import ModelBusyError, ModelLock
+from laplab.store.lock import LOCK_FILE_NAME, ModelBusyError, ModelLock
 from laplab.train.config import TrainConfig
 from laplab.train.errors import JobError
 from laplab.track.geometry import Track
@@ -78,6 +78,33 @@ def create_training(name: str, config: TrainConfig, init_weights: dict | None = 
         shutil.rmtree(staging.root, ignore_errors=True)
         raise
     lock.root = folder.root
+    return _start(folder, config, reward_fn, track, lock, init_weights)
+
+
+def create_training_in_place(name: str, config: TrainConfig, init_weights: dict | None = None) -> Trainer:
+    """:func:`create_training` for a model folder made empty beforehand (the console's confined jobs
+    see only that folder, so they cannot write beside it and rename). Refuses a folder with files."""
+    validate_model_name(name)
+    folder = model_folder(name)
+    if folder.exists() and any(p.name != LOCK_FILE_NAME for p in folder.root.iterdir()):
+        raise JobError(f"a model named {name!r} already exists at {folder.root}; models are immutable.")
+    track = job_track(config)
+    reward_fn = load_and_validate_reward(config, track)
+    folder.create()
+    lock = take_lock(folder)
+    try:
+        folder.write_model_metadata(config.model_metadata.to_dict())
+        folder.write_hyperparameters(config.hyper().to_dict())
+        folder.write_reward_function(reward_file(config).read_text())
+        folder.write_laplab_config(config.to_dict())
+    except BaseException:
+        lock.release()
+        raise
+    return _start(folder, config, reward_fn, track, lock, init_weights)
+
+
+def _start(folder: ModelFolder, config: TrainConfig, reward_fn, track: Track, lock: ModelLock,
+           init_weights: dict | None) -> Trainer:
     try:
         trainer = _attach(Trainer(config, reward_fn, track), folder)
         if init_weights is not None:

@@ -52,16 +52,27 @@ def test_serve_refuses_no_accounts_on_a_public_address(tmp_path, monkeypatch, ca
     assert main(["serve", "--workers", "0"]) == 2
 
 
-def test_camera_frame_picks_the_newest_frame_of_the_first_car(tmp_path):
+def test_live_feed_publishes_poses_and_the_camera_frame_of_car_0(tmp_path):
+    import json
+    from types import SimpleNamespace
+
     import numpy as np
     from PIL import Image
 
-    from laplab.jobs.worker import JobFiles, camera_frame
-    stack = np.zeros((4, 3, 120, 160), dtype=np.uint8)
-    stack[0, -1, 10:20, 30:40] = 200
-    frame = camera_frame(stack)
-    assert frame.shape == (120, 160) and frame[15, 35] == 200
-    assert camera_frame({"FRONT_FACING_CAMERA": stack, "LIDAR": np.zeros((4, 64), np.float32)})[15, 35] == 200
-    assert camera_frame(np.zeros((4, 30), np.float32)) is None  # STATE or lidar only
-    JobFiles(tmp_path).write_camera(frame)
-    assert np.asarray(Image.open(tmp_path / "camera.png"))[15, 35] == 200
+    from laplab.env.metadata import ModelMetadata
+    from laplab.jobs.worker import JobFiles, LiveFeed
+    from laplab.track.registry import load_track
+    from laplab.train.events import PosesFrame
+    track = load_track("classic_2018")
+    start = track.centerline[0]
+    heading = np.arctan2(*(track.centerline[1] - start)[::-1])
+    poses = np.array([[start[0], start[1], heading], [start[0] + 1.0, start[1], 0.0]])
+    camera_model = SimpleNamespace(metadata=ModelMetadata(sensors=("FRONT_FACING_CAMERA",)), track=track)
+    feed = LiveFeed(JobFiles(tmp_path), camera_model)
+    feed.on_poses(PosesFrame(iteration=1, poses=poses, sim_time=0.0))
+    cars = json.loads((tmp_path / "poses.json").read_text())["cars"]
+    assert cars == [[round(float(v), 3) for v in pose] for pose in poses]
+    frame = np.asarray(Image.open(tmp_path / "camera.png"))
+    assert frame.shape == (120, 160) and frame.std() > 5  # the road seen from the start line, not a blank
+    state_model = SimpleNamespace(metadata=ModelMetadata(), track=track)
+    LiveFeed(JobFiles(tmp_path / "state"), state_model)  # no camera: nothing to render
