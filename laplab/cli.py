@@ -31,8 +31,6 @@ COMMAND_MODULES = (
 )
 
 
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="laplab", description="A local, open and fast DeepRacer.")
     parser.add_argument("--version", action="version", version=f"laplab {_version()}")

@@ -30,7 +30,7 @@ def is_loopback(host: str) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    from laplab.cli import UserError
+    from laplab.errors import UserError
     try:
         import uvicorn
 

@@ -36,7 +36,7 @@ def add_limit_options(parser: argparse.ArgumentParser, reward: bool = True) -> N
 
 
 def job_limits_from_args(args: argparse.Namespace):
-    from laplab.cli import UserError
+    from laplab.errors import UserError
     from laplab.jobs.supervisor import JobLimits, parse_memory_limit
     from laplab.train.config import parse_duration
     try:

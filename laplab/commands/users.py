@@ -25,7 +25,7 @@ def _store():
 
 
 def run_add(args: argparse.Namespace) -> int:
-    from laplab.cli import UserError
+    from laplab.errors import UserError
     from laplab.jobs.db import StoreError
     store = _store()
     if store.admin() is None and not args.admin:
@@ -41,7 +41,7 @@ def run_add(args: argparse.Namespace) -> int:
 
 
 def run_token(args: argparse.Namespace) -> int:
-    from laplab.cli import UserError
+    from laplab.errors import UserError
     store = _store()
     user = store.user_by_name(args.name)
     if user is None:

@@ -22,20 +22,8 @@ from laplab.jobs.runner import models_dir
 router = APIRouter(prefix="/api")
 
 
-class CreateModel(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    name: str
-    description: str = Field("", max_length=255)
-    track: str | None = None
-    reward_function: str | None = Field(None, max_length=100_000)
-    model_metadata: dict | None = None
-    hyperparameters: dict | None = None
-    max_time_s: float = 600.0
-    max_episodes: int | None = None
-    seed: int = 0
-
-
 class CloneModel(BaseModel):
+    """A clone of a model: its name and what changes (the action space and sensors cannot)."""
     model_config = ConfigDict(extra="forbid")
     name: str
     description: str = Field("", max_length=255)
@@ -45,6 +33,11 @@ class CloneModel(BaseModel):
     hyperparameters: dict | None = None
     max_time_s: float = 600.0
     max_episodes: int | None = None
+
+
+class CreateModel(CloneModel):
+    """A new model: what a clone gives, and the training seed."""
+    seed: int = 0
 
 
 class Resume(BaseModel):

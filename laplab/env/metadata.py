@@ -34,11 +34,11 @@ class ModelMetadata:
 
     @property
     def camera(self) -> str | None:
-        return next((s for s in self.sensors if s in CAMERA_SENSORS), None)
+        return camera_sensor(self.sensors)
 
     @property
     def lidar(self) -> str | None:
-        return next((s for s in self.sensors if s in LIDAR_SENSORS), None)
+        return lidar_sensor(self.sensors)
 
     def to_dict(self) -> dict:
         out = {"action_space": self.action_space.to_json(), "sensor": list(self.sensors),
@@ -47,6 +47,16 @@ class ModelMetadata:
         if self.lidar_config is not None:
             out["lidar_config"] = dict(self.lidar_config)
         return out
+
+
+def camera_sensor(sensors: tuple[str, ...]) -> str | None:
+    """The model's camera sensor name, or None."""
+    return next((s for s in sensors if s in CAMERA_SENSORS), None)
+
+
+def lidar_sensor(sensors: tuple[str, ...]) -> str | None:
+    """The model's lidar sensor name, or None."""
+    return next((s for s in sensors if s in LIDAR_SENSORS), None)
 
 
 def validate_sensors(sensors: object, source: str) -> tuple[str, ...]:

@@ -18,7 +18,7 @@ import numpy as np
 
 from laplab.env.action_space import ActionSpace, default_action_space
 from laplab.env.metadata import (CAMERA_SENSORS, LIDAR_SENSORS, NETWORKS, STATE_SENSOR, MetadataError,
-                                 ModelMetadata, validate_sensors)
+                                 ModelMetadata, camera_sensor, lidar_sensor, validate_sensors)
 
 
 @dataclass(frozen=True)
@@ -55,11 +55,11 @@ class ModelSpec:
 
     @property
     def camera(self) -> str | None:
-        return next((s for s in self.sensors if s in CAMERA_SENSORS), None)
+        return camera_sensor(self.sensors)
 
     @property
     def lidar(self) -> str | None:
-        return next((s for s in self.sensors if s in LIDAR_SENSORS), None)
+        return lidar_sensor(self.sensors)
 
     @property
     def observation_space(self) -> gym.Space:
