@@ -162,6 +162,21 @@ def list_models_route(request: Request, user: User = Depends(current_user)) -> l
     return _service(request).visible_models(user)
 
 
+async def _validate_and_claim(request: Request, user: User, body: CloneModel, reward_source: str | None,
+                              track: str | None, model_metadata: dict | None) -> None:
+    """Run the validation sweep on ``reward_source`` (None: the default reward, nothing to check; a
+    failure is a 400 naming its line), then claim ``body.name`` for ``user`` (409 when taken)."""
+    if reward_source is not None:
+        answer = await _validate_reward(request, user, reward_source, track, model_metadata)
+        if not answer["ok"]:
+            first = answer["errors"][0]
+            raise bad_request(first["message"], "reward_function", line=first.get("line"), errors=answer["errors"])
+    try:
+        _service(request).store.claim_model(body.name, user.id, body.description)
+    except StoreError as exc:
+        raise HTTPException(409, {"message": str(exc), "field": "name"}) from None
+
+
 @router.post("/models", status_code=201)
 async def create_model(body: CreateModel, request: Request, user: User = Depends(current_user)) -> dict:
     service = _service(request)
@@ -169,15 +184,7 @@ async def create_model(body: CreateModel, request: Request, user: User = Depends
     values = {"track": body.track, "model_metadata": body.model_metadata, "hyperparameters": body.hyperparameters,
               "max_time_s": body.max_time_s, "max_episodes": body.max_episodes, "seed": body.seed}
     _check_train_inputs(values)
-    if body.reward_function is not None:
-        answer = await _validate_reward(request, user, body.reward_function, body.track, body.model_metadata)
-        if not answer["ok"]:
-            first = answer["errors"][0]
-            raise bad_request(first["message"], "reward_function", line=first.get("line"), errors=answer["errors"])
-    try:
-        service.store.claim_model(body.name, user.id, body.description)
-    except StoreError as exc:
-        raise HTTPException(409, {"message": str(exc), "field": "name"}) from None
+    await _validate_and_claim(request, user, body, body.reward_function, body.track, body.model_metadata)
     job = service.submit("train", body.name, user.id, {k: v for k, v in values.items() if v is not None},
                          reward_source=body.reward_function)
     return {**service.describe(body.name), "job": job.to_dict()}
@@ -252,14 +259,7 @@ async def clone_model(name: str, body: CloneModel, request: Request, user: User 
     source = body.reward_function
     if source is None:
         source = (models_dir() / name / "reward_function.py").read_text()
-    answer = await _validate_reward(request, user, source, values["track"], values["model_metadata"])
-    if not answer["ok"]:
-        first = answer["errors"][0]
-        raise bad_request(first["message"], "reward_function", line=first.get("line"), errors=answer["errors"])
-    try:
-        service.store.claim_model(body.name, user.id, body.description)
-    except StoreError as exc:
-        raise HTTPException(409, {"message": str(exc), "field": "name"}) from None
+    await _validate_and_claim(request, user, body, source, values["track"], values["model_metadata"])
     params = {k: v for k, v in values.items() if v is not None and k != "model_metadata"}
     job = service.submit("clone", body.name, user.id, {**params, "source": name}, reward_source=source)
     return {**service.describe(body.name), "job": job.to_dict()}
