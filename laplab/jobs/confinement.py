@@ -28,6 +28,8 @@ from functools import lru_cache
 from pathlib import Path
 
 GIB = 1024 ** 3
+# hidden behind empty tmpfs mounts inside the sandbox (code found under them is bound back read-only)
+HIDDEN_DIRS = ("/tmp", "/var/tmp", "/dev/shm", "/root", "/home", "/run", "/var/run")
 SANDBOX_HOME = "/tmp/laplab"  # on the private /tmp (bwrap can only make folders on a tmpfs)
 
 
@@ -62,12 +64,13 @@ def bubblewrap_works() -> bool:
 
 
 def _python_dirs() -> list[str]:
-    """Folders the interpreter and laplab load code from (rebound read-only over hidden homes)."""
+    """Folders the interpreter and laplab load code from that the sandbox hides (a checkout under /tmp
+    or a home folder): rebound read-only over the private tmpfs."""
     dirs = {sys.prefix, sys.base_prefix, str(Path(sys.executable).resolve().parent.parent)}
     dirs |= {p for p in sys.path if p and os.path.isdir(p)}
     import laplab
     dirs.add(str(Path(laplab.__file__).resolve().parent.parent))
-    return sorted(d for d in dirs if d.startswith(("/root", "/home")))
+    return sorted(d for d in dirs if d.startswith(HIDDEN_DIRS))
 
 
 def _bwrap_prefix(mounts: Mounts) -> list[str]:
