@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import importlib.metadata
+import os
+import shutil
 import subprocess
 import sys
 import tomllib
 import warnings
+import zipfile
 from pathlib import Path
 
 import gymnasium as gym
@@ -42,6 +46,69 @@ def test_make_from_a_fresh_interpreter_needs_no_laplab_import():
                          env={"PYTHONPATH": str(REPO_ROOT), "PATH": "/usr/bin:/bin"}, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.split()[0] == "TimeTrialEnv"
+
+
+def _installed_site_packages() -> Path | None:
+    """The site-packages folder laplab is pip-installed in, or None (a bare checkout on PYTHONPATH)."""
+    try:
+        dist = importlib.metadata.distribution("laplab")
+    except importlib.metadata.PackageNotFoundError:
+        return None
+    return Path(dist.locate_file(""))
+
+
+def test_plain_make_works_in_a_fresh_interpreter_that_never_imports_laplab():
+    """Installing laplab installs laplab-gymnasium.pth: gym.make("laplab/TimeTrial-v0") as
+    Gymnasium's docs write it, with no laplab import in the user's code (and none before the make)."""
+    site_packages = _installed_site_packages()
+    if site_packages is None:
+        pytest.skip("laplab is not pip-installed here (the hook comes with the install)")
+    assert (site_packages / "laplab-gymnasium.pth").is_file(), f"no laplab-gymnasium.pth in {site_packages}"
+    code = ("import sys, gymnasium as gym; assert 'laplab' not in sys.modules; "
+            "assert 'laplab/TimeTrial-v0' in gym.registry; "
+            "env = gym.make('laplab/TimeTrial-v0', track='oval'); obs, _ = env.reset(seed=0); "
+            "print(type(env.unwrapped).__name__, obs.shape)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd="/",
+                         env={"PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/")}, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split()[0] == "TimeTrialEnv"
+
+
+def test_the_hook_waits_for_gymnasium_and_registers_once():
+    code = ("import sys; import laplab_gymnasium_hook as h; h.install(); h.install(); "
+            "finders = [f for f in sys.meta_path if type(f).__name__ == '_GymnasiumFinder']; "
+            "import gymnasium as gym; import laplab.env; "
+            "print(len(finders), gym.registry['laplab/TimeTrial-v0'].entry_point, "
+            "any(type(f).__name__ == '_GymnasiumFinder' for f in sys.meta_path))")
+    out = subprocess.run([sys.executable, "-S", "-c", code], capture_output=True, text=True, cwd=REPO_ROOT,
+                         env={"PYTHONPATH": os.pathsep.join([str(REPO_ROOT), *sys.path[1:]]),
+                              "PATH": "/usr/bin:/bin"}, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["1", "laplab.env.time_trial:TimeTrialEnv", "False"]
+
+
+@pytest.mark.parametrize("kind", ["wheel", "editable"])
+def test_both_kinds_of_install_carry_the_hook(kind, tmp_path):
+    """setup.py puts laplab-gymnasium.pth at the top of regular and editable wheels alike."""
+    pytest.importorskip("setuptools")
+    source = tmp_path / "src"
+    source.mkdir()
+    for name in ("pyproject.toml", "setup.py", "README.md", "LICENSE", "laplab-gymnasium.pth",
+                 "laplab_gymnasium_hook.py"):
+        shutil.copy(REPO_ROOT / name, source / name)
+    shutil.copytree(REPO_ROOT / "laplab", source / "laplab", ignore=shutil.ignore_patterns("__pycache__"))
+    build = "build_wheel" if kind == "wheel" else "build_editable"
+    code = f"from setuptools import build_meta; print(build_meta.{build}({str(tmp_path / 'dist')!r}))"
+    (tmp_path / "dist").mkdir()
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=source, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    wheel_name = out.stdout.strip().splitlines()[-1]
+    with zipfile.ZipFile(tmp_path / "dist" / wheel_name) as wheel:
+        names = wheel.namelist()
+        assert "laplab-gymnasium.pth" in names
+        assert wheel.read("laplab-gymnasium.pth").decode().startswith("import laplab_gymnasium_hook")
+        if kind == "wheel":
+            assert "laplab_gymnasium_hook.py" in names
 
 
 @pytest.mark.parametrize("view,shape", [("topdown", None), ("camera", (480, 640, 3))])
