@@ -1,0 +1,211 @@
+"""laplab from Python, as the SageMaker RL + RoboMaker notebook drives DeepRacer.
+
+The notebook's steps, one call each: write the model's files (reward function, action space,
+hyperparameters), start a training job that runs on its own (``TrainingJob.start``, like
+``estimator.fit(wait=False)``: a ``laplab train`` process, with rollout workers on Ray and the model
+in an S3 store when asked), read and plot its metrics while it runs (re-run the cell), evaluate it,
+and take the artifact for the car. Jobs are processes, not threads: the notebook's kernel stays free,
+and a job gets the command line's supervision, limits and error paragraphs.
+
+Nothing here imports torch; the job processes do.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from laplab.errors import UserError
+
+__all__ = ["ModelFiles", "TrainingJob", "evaluate", "export_for_car", "write_model_files"]
+
+RUNNING, COMPLETED, FAILED, STOPPED = "InProgress", "Completed", "Failed", "Stopped"
+
+
+@dataclass(frozen=True)
+class ModelFiles:
+    """The files a training job starts from (paths), as the notebook uploads them to S3."""
+
+    reward_function: Path
+    model_metadata: Path
+    hyperparameters: Path
+
+
+def write_model_files(folder: str | os.PathLike, reward_function: str, action_space: list[dict] | dict,
+                      hyperparameters: dict[str, Any] | None = None, sensor: list[str] | None = None,
+                      neural_network: str = "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW",
+                      training_algorithm: str = "clipped_ppo") -> ModelFiles:
+    """Write ``reward_function.py``, ``model_metadata.json`` and ``hyperparameters.json`` into ``folder``.
+
+    ``action_space``: DeepRacer's list of ``{"steering_angle": deg, "speed": m/s}`` or its continuous
+    ``{"steering_angle": {"low", "high"}, "speed": {"low", "high"}}``; ``sensor`` defaults to
+    ``["FRONT_FACING_CAMERA"]``; ``hyperparameters`` are DeepRacer's keys (missing keys take
+    DeepRacer's defaults). The files are checked as ``laplab train`` checks them: a mistake is a
+    :class:`~laplab.errors.UserError` naming the file and the key.
+    """
+    from laplab.agents.hyperparameters import load_hyperparameters
+    from laplab.env.metadata import load_model_metadata
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    files = ModelFiles(folder / "reward_function.py", folder / "model_metadata.json", folder / "hyperparameters.json")
+    files.reward_function.write_text(reward_function)
+    metadata = {"action_space": action_space, "sensor": sensor or ["FRONT_FACING_CAMERA"],
+                "neural_network": neural_network, "training_algorithm": training_algorithm,
+                "action_space_type": "continuous" if isinstance(action_space, dict) else "discrete",
+                "version": "5"}
+    files.model_metadata.write_text(json.dumps(metadata, indent=2))
+    files.hyperparameters.write_text(json.dumps(hyperparameters or {}, indent=2))
+    try:
+        load_model_metadata(files.model_metadata)
+        load_hyperparameters(files.hyperparameters)
+    except (ValueError, OSError) as exc:
+        raise UserError(str(exc)) from None
+    return files
+
+
+def _laplab(*args: str) -> list[str]:
+    return [sys.executable, "-m", "laplab.cli", *args]
+
+
+def _store_args(store: str | None) -> list[str]:
+    return ["--store", store] if store else []
+
+
+@dataclass
+class TrainingJob:
+    """A ``laplab train`` process and the model it writes (``name``, in ``store`` or the local models
+    folder). Made by :meth:`start`; ``log`` is the job's terminal output."""
+
+    name: str
+    process: subprocess.Popen
+    log: Path
+    store: str | None = None
+    started: float = field(default_factory=time.time)
+
+    @classmethod
+    def start(cls, name: str, files: ModelFiles, track: str = "classic_2018", max_time: str = "10m",
+              workers: int = 1, store: str | None = None, ray_address: str | None = None,
+              extra_args: tuple[str, ...] = (), log_folder: str | os.PathLike | None = None) -> "TrainingJob":
+        """Start training model ``name`` in the background and return at once.
+
+        ``track`` may be a list (``["reInvent2019_track", "Canada_Training@reversed"]``) for a
+        multi-track job, one track per rollout worker in turn; ``workers`` > 1 runs rollout workers on
+        Ray (a local one, or the cluster at ``ray_address``); ``store`` is ``s3://bucket/prefix`` or
+        None for ``$LAPLAB_HOME/models``.
+        """
+        tracks = [track] if isinstance(track, str) else list(track)
+        args = ["train", "--name", name, "--reward", str(files.reward_function),
+                "--model-metadata", str(files.model_metadata), "--hyperparameters", str(files.hyperparameters),
+                "--max-time", str(max_time), "--quiet", *_store_args(store)]
+        for one in tracks:
+            args += ["--track", one]
+        if workers != 1:
+            args += ["--workers", str(workers)]
+        if ray_address:
+            args += ["--ray-address", ray_address]
+        log = Path(log_folder or files.reward_function.parent) / f"{name}-training.log"
+        with open(log, "wb") as out:
+            process = subprocess.Popen(_laplab(*args, *extra_args), stdout=out, stderr=subprocess.STDOUT,
+                                       stdin=subprocess.DEVNULL)
+        return cls(name, process, log, store)
+
+    def status(self) -> str:
+        """``InProgress``, ``Completed``, ``Stopped`` or ``Failed`` (as SageMaker's DescribeTrainingJob)."""
+        code = self.process.poll()
+        if code is None:
+            return RUNNING
+        return COMPLETED if code == 0 else STOPPED if code in (-2, -15, 130, 143) else FAILED
+
+    def wait(self, timeout: float | None = None) -> str:
+        """Wait for the job to end (or ``timeout`` seconds) and return its status."""
+        try:
+            self.process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            pass
+        return self.status()
+
+    def stop(self) -> str:
+        """Ask the job to stop (as Ctrl-C: it keeps its last complete checkpoint) and wait for it."""
+        if self.process.poll() is None:
+            self.process.send_signal(2)
+        return self.wait()
+
+    def output(self, lines: int = 20) -> str:
+        """The last ``lines`` lines of the job's output (its error paragraph when it failed)."""
+        text = self.log.read_text(errors="replace") if self.log.exists() else ""
+        return "\n".join(text.splitlines()[-lines:])
+
+    def metrics(self) -> list[dict[str, Any]]:
+        """The rows of ``metrics/TrainingMetrics.json`` so far (one per training or evaluation-phase
+        episode, DeepRacer's keys), or [] before the first iteration."""
+        return training_metrics(self.name, self.store)
+
+    def plot_metrics(self, window: int = 20):
+        """DeepRacer's training chart: reward per episode (and its moving average), training and
+        evaluation progress (%) per episode; a matplotlib Figure (a notebook shows it)."""
+        from laplab.analysis.metrics_chart import training_metrics_figure
+        return training_metrics_figure(self.metrics(), title=self.name, window=window)
+
+
+def read_model_file(name: str, relative: str, store: str | None = None) -> bytes | None:
+    """The bytes of ``relative`` (e.g. ``metrics/TrainingMetrics.json``) in model ``name``'s folder, or
+    None when it does not exist yet."""
+    if store:
+        from laplab.store.remote import open_store
+        return open_store(store).read_model_file(name, relative)
+    from laplab.store.layout import model_folder
+    path = model_folder(name).root / relative
+    return path.read_bytes() if path.is_file() else None
+
+
+def training_metrics(name: str, store: str | None = None) -> list[dict[str, Any]]:
+    """The rows of model ``name``'s ``metrics/TrainingMetrics.json`` ([] before the first iteration)."""
+    data = read_model_file(name, "metrics/TrainingMetrics.json", store)
+    if data is None:
+        return []
+    try:
+        return list(json.loads(data)["metrics"])
+    except (ValueError, KeyError, TypeError):  # written atomically; a foreign file may still be bad
+        raise UserError(f"model {name!r}: metrics/TrainingMetrics.json is not DeepRacer's metrics "
+                        "JSON ({\"metrics\": [...]})") from None
+
+
+def _run(args: list[str], what: str) -> str:
+    done = subprocess.run(_laplab(*args), capture_output=True, text=True, stdin=subprocess.DEVNULL)
+    if done.returncode != 0:  # the command's own paragraph, without libraries' log lines before it
+        lines = (done.stderr.strip() or done.stdout.strip()).splitlines()
+        ours = [i for i, line in enumerate(lines) if line.startswith("laplab")]
+        message = " ".join(lines[ours[0]:] if ours else lines[-6:]) or f"exit code {done.returncode}"
+        raise UserError(f"{what} failed: {message}")
+    return done.stdout
+
+
+def evaluate(name: str, track: str | None = None, trials: int = 3, store: str | None = None,
+             extra_args: tuple[str, ...] = ()) -> dict[str, Any]:
+    """Evaluate model ``name`` as ``laplab evaluate`` does (DeepRacer's trial rules; kept in the model
+    folder) and return its result: ``trials`` (lap times, statuses, off-tracks), the summary."""
+    args = ["evaluate", name, "--trials", str(trials), "--json", *_store_args(store), *extra_args]
+    if track:
+        args += ["--track", track]
+    return json.loads(_run(args, f"evaluating {name!r}"))
+
+
+def export_for_car(name: str, out: str | os.PathLike, store: str | None = None, checkpoint: str = "best") -> Path:
+    """Write the car's model archive (``model.tar.gz``: ``agent/model.pb`` and ``model_metadata.json``,
+    which the car's console uploads) for model ``name`` to ``out`` and return its path."""
+    out = Path(out)
+    _run(["export", name, "--format", "car", "--checkpoint", checkpoint, "--out", str(out), *_store_args(store)],
+         f"exporting {name!r} for the car")
+    if out.is_dir():
+        archives = sorted(out.glob("*.tar.gz"), key=lambda p: p.stat().st_mtime)
+        if not archives:
+            raise UserError(f"exporting {name!r} for the car wrote no .tar.gz into {out}")
+        return archives[-1]
+    return out
