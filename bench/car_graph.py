@@ -54,7 +54,7 @@ def main() -> None:
     started = time.perf_counter()
     result = create_training(name, config).run()
     print(f"trained {name}: {result.iterations} iterations, {result.episodes} episodes, {result.env_steps} steps "
-          f"in {time.perf_counter() - started:.0f} s ({args.track}, FRONT_FACING_CAMERA, {config.model_metadata['neural_network']})")
+          f"in {time.perf_counter() - started:.0f} s ({args.track}, FRONT_FACING_CAMERA, {config.model_metadata.neural_network})")
 
     started = time.perf_counter()
     graph = build_car_graph(name)
