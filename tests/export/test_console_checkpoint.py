@@ -26,22 +26,30 @@ CHECKPOINT_CASES = [CASES[0], CASES[2], CASES[3], CASES[4], CASES[7], CASES[8]]
 PPO_ROOT = "main_level/agent/main/online"
 
 
-def write_checkpoint(folder, case):
-    model, space = make_network(*case)
-    sensors = list(case[0])
-    layers = policy_layers(model, space, sensors)
-    value = value_layers(model, space, sensors) if case[2] == "clipped_ppo" else None
-    written = checkpoint_files(PREFIX, layers, value)
-    folder.mkdir(parents=True, exist_ok=True)
-    for name, data in written.files.items():
-        (folder / name).write_bytes(data)
-    return model, space, layers, value, written
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    """``checkpoint(case)`` -> (model, space, layers, value, written files, folder), built once per case."""
+    cache = {}
+
+    def get(case):
+        if case not in cache:
+            model, space = make_network(*case)
+            sensors = list(case[0])
+            layers = policy_layers(model, space, sensors)
+            value = value_layers(model, space, sensors) if case[2] == "clipped_ppo" else None
+            written = checkpoint_files(PREFIX, layers, value)
+            folder = tmp_path_factory.mktemp("checkpoint") / "model"
+            folder.mkdir()
+            for name, data in written.files.items():
+                (folder / name).write_bytes(data)
+            cache[case] = (model, space, layers, value, written, folder)
+        return cache[case]
+    return get
 
 
 @pytest.mark.parametrize("case", CHECKPOINT_CASES, ids=case_id)
-def test_checkpoint_restores_laplabs_policy_and_value(tmp_path, case):
-    folder = tmp_path / "model"
-    model, space, layers, value, written = write_checkpoint(folder, case)
+def test_checkpoint_restores_laplabs_policy_and_value(checkpoint, case):
+    model, space, layers, value, written, folder = checkpoint(case)
     assert sorted(written.files) == sorted([f"{PREFIX}.index", f"{PREFIX}.data-00000-of-00001", f"{PREFIX}.meta",
                                             "checkpoint"])
     # TensorFlow finds the checkpoint through the state file, as tf.train.latest_checkpoint does
@@ -69,12 +77,11 @@ def test_checkpoint_restores_laplabs_policy_and_value(tmp_path, case):
         assert np.ptp(torch_value) > 0.0
 
 
-def test_shallow_camera_ppo_has_rl_coachs_variable_names_and_shapes(tmp_path):
+def test_shallow_camera_ppo_has_rl_coachs_variable_names_and_shapes(checkpoint):
     """The names deepracer-simapp's rl_coach gives a FRONT_FACING_CAMERA shallow clipped-PPO model:
     network_0 value, network_1 policy; conv layers 0, 2, 4 (an activation layer after each);
     middleware Dense_0 over the channels-last flatten of the 11 x 16 x 64 conv output."""
-    folder = tmp_path / "model"
-    _, _, layers, _, _ = write_checkpoint(folder, CASES[0])
+    _, _, layers, _, _, folder = checkpoint(CASES[0])
     shapes = tf.train.load_checkpoint(str(folder)).get_variable_to_shape_map()
     expected = {}
     for network in ("network_0", "network_1"):
@@ -98,21 +105,22 @@ def test_shallow_camera_ppo_has_rl_coachs_variable_names_and_shapes(tmp_path):
     assert sorted(channels_last_rows(11, 16, 64)) == list(range(11 * 16 * 64))
 
 
-def test_continuous_ppo_and_sac_heads(tmp_path):
-    names = set(rl_coach_variables(*write_checkpoint(tmp_path / "ppo", CASES[3])[2:4]))
+def test_continuous_ppo_and_sac_heads(checkpoint):
+    names = set(checkpoint(CASES[3])[4].variables)
     assert {f"{PPO_ROOT}/network_1/ppo_head_0/policy_mean/kernel", f"{PPO_ROOT}/network_1/ppo_head_0/policy_log_std"} <= names
     assert not any("policy_fc" in name for name in names)
-    _, _, layers, _, written = write_checkpoint(tmp_path / "sac", CASES[4])
+    _, _, _, value, written, folder = checkpoint(CASES[4])
+    assert value is None  # laplab's twin critics do not map onto rl_coach's q / v networks
     assert all(name.startswith("main_level/agent/policy/online/network_0/") for name in written.variables)
     assert "main_level/agent/policy/online/network_0/sac_policy_head_0/policy_mean/kernel" in written.variables
-    shapes = tf.train.load_checkpoint(str(tmp_path / "sac")).get_variable_to_shape_map()
+    shapes = tf.train.load_checkpoint(str(folder)).get_variable_to_shape_map()
     assert shapes["main_level/agent/policy/online/network_0/sac_policy_head_0/policy_log_std/kernel"] == [512, 2]
 
 
-def test_deep_network_layer_indices(tmp_path):
+def test_deep_network_layer_indices(checkpoint):
     """DEEP_CONVOLUTIONAL_NETWORK_DEEP: 4 convs, 2 dense in the camera embedder, middleware 256, 128."""
     assert CASES[2][1] == DEEP and CASES[0][1] == SHALLOW
-    _, _, _, _, written = write_checkpoint(tmp_path / "model", CASES[2])
+    written = checkpoint(CASES[2])[4]
     camera = f"{PPO_ROOT}/network_1/FRONT_FACING_CAMERA"
     layer_names = {name.rsplit("/", 1)[0] for name in written.variables if name.startswith(camera)}
     assert layer_names == {f"{camera}/Conv2d_{i}" for i in (0, 2, 4, 6)} | {f"{camera}/Dense_{i}" for i in (8, 10)}
