@@ -34,6 +34,23 @@ class ConsoleExport:
     files: tuple[str, ...]  # paths relative to ``folder``
     graph: CarGraph
     checkpoint_error: float  # max |restored checkpoint - model.pb| on random inputs
+    limitations: tuple[str, ...] = ()  # what DeepRacer's simapp cannot do with the checkpoint (see below)
+
+
+def simapp_limitations(metadata: dict) -> tuple[str, ...]:
+    """Why the simapp (console evaluation, resumed training) could not restore this model's
+    checkpoint, though the car and the console's races run its model.pb (docs/car.md)."""
+    notes = []
+    if metadata.get("training_algorithm") == "sac":
+        notes.append("SAC: DeepRacer's SAC networks differ from laplab's (a dense 256 layer in the policy "
+                     "head; one shared critic embedder and a V network), so the checkpoint holds the policy "
+                     "in laplab's layout and no critics; the simapp cannot evaluate or resume it from the checkpoint")
+    network = metadata.get("neural_network", "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW")
+    if "STEREO_CAMERAS" in metadata.get("sensor", []) and network != "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW":
+        notes.append(f"STEREO_CAMERAS with {network}: DeepRacer uses a five-layer stereo conv scheme there, "
+                     "laplab the camera scheme; the simapp cannot restore the checkpoint (train stereo models "
+                     "with DEEP_CONVOLUTIONAL_NETWORK_SHALLOW for the console)")
+    return tuple(notes)
 
 
 def console_checkpoint(graph: CarGraph) -> tuple[dict[str, bytes], float]:
@@ -118,4 +135,4 @@ def export_console(name: str, checkpoint: str = "best", out: str | Path | None =
         files["metrics/TrainingMetrics.json"] = source.training_metrics.read_bytes()
     for relative, data in files.items():
         atomic_write_bytes(folder / relative, data)
-    return ConsoleExport(folder, tuple(files), graph, checkpoint_error)
+    return ConsoleExport(folder, tuple(files), graph, checkpoint_error, simapp_limitations(graph.metadata))

@@ -197,6 +197,7 @@ def test_console_checkpoint_is_found_and_restored_as_deepracer_tooling_does(cons
     assert np.array_equal(value_layers(policy.network, policy.observation_space, sensors).head.kernel,
                           console.graph.value_layers.head.kernel)
     assert console.checkpoint_error <= 1e-5
+    assert console.limitations == ()  # a front-camera PPO model: the simapp restores all of it
 
 
 def test_models_the_car_cannot_run_are_refused(home, tmp_path, capsys):

@@ -127,3 +127,15 @@ def test_deep_network_layer_indices(checkpoint):
     middleware = {name.rsplit("/", 1)[0] for name in written.variables
                   if name.startswith(f"{PPO_ROOT}/network_1/middleware_fc_embedder/")}
     assert middleware == {f"{PPO_ROOT}/network_1/middleware_fc_embedder/Dense_{i}" for i in (0, 2)}
+
+
+def test_what_the_simapp_cannot_restore_is_named():
+    from laplab.export.console import simapp_limitations
+
+    assert simapp_limitations({"sensor": ["FRONT_FACING_CAMERA"], "training_algorithm": "clipped_ppo",
+                               "neural_network": "DEEP_CONVOLUTIONAL_NETWORK_DEEP"}) == ()
+    assert simapp_limitations({"sensor": ["STEREO_CAMERAS"], "training_algorithm": "clipped_ppo"}) == ()
+    sac = simapp_limitations({"sensor": ["FRONT_FACING_CAMERA"], "training_algorithm": "sac"})
+    assert len(sac) == 1 and sac[0].startswith("SAC:")
+    stereo = simapp_limitations({"sensor": ["STEREO_CAMERAS", "LIDAR"], "neural_network": "DEEP_CONVOLUTIONAL_NETWORK"})
+    assert len(stereo) == 1 and "five-layer stereo" in stereo[0]
