@@ -3,7 +3,8 @@ the car's ``model.pb`` (``laplab export --format car``), converted by OpenVINO w
 model optimizer passes, and driven in laplab's simulator through OpenVINO inference, against the same
 model driven by its torch policy.
 
-Prints, for both drivers: laps completed out of the trials and each lap time; the share of decisions
+Also writes the console's TensorFlow checkpoint of the model (``--format console``) and prints its
+size and the time to write, restore and check it. Prints, for both drivers: laps completed out of the trials and each lap time; the share of decisions
 where OpenVINO picked the torch policy's action on the same frame; the OpenVINO inference latency
 per frame (one frame per call, as the car runs it; single thread, median and 90th percentile); and
 the same agreement (every 10th frame) for the FP16 model the car's ``--data_type FP16`` conversion makes.
@@ -39,6 +40,7 @@ def main() -> None:
     from laplab.env.metadata import ModelMetadata
     from laplab.evaluate.trials import EvaluationSettings, evaluate_policy
     from laplab.export.car import build_car_graph
+    from laplab.export.console import console_checkpoint
     from laplab.export.openvino_model import OpenVinoPolicy, car_optimizer_inputs
     from laplab.export.policy_layers import policy_layers
     from laplab.export.tensorflow_graph import graph_feed
@@ -54,7 +56,7 @@ def main() -> None:
     started = time.perf_counter()
     result = create_training(name, config).run()
     print(f"trained {name}: {result.iterations} iterations, {result.episodes} episodes, {result.env_steps} steps "
-          f"in {time.perf_counter() - started:.0f} s ({args.track}, FRONT_FACING_CAMERA, {config.model_metadata['neural_network']})")
+          f"in {time.perf_counter() - started:.0f} s ({args.track}, FRONT_FACING_CAMERA, {config.model_metadata.neural_network})")
 
     started = time.perf_counter()
     graph = build_car_graph(name)
@@ -72,6 +74,11 @@ def main() -> None:
     layers = policy_layers(policy.network, policy.observation_space, sensors)
     print(f"model.pb {len(graph.data) / 1e6:.1f} MB from {graph.checkpoint} in {export_s:.1f} s "
           f"(max |TF - torch| {graph.parity_error:.1e}); OpenVINO convert + compile {convert_s:.1f} s")
+    started = time.perf_counter()
+    checkpoint, checkpoint_error = console_checkpoint(graph)
+    print(f"console's TensorFlow checkpoint ({', '.join(sorted(checkpoint))}): "
+          f"{sum(map(len, checkpoint.values())) / 1e6:.1f} MB written, restored and checked in "
+          f"{time.perf_counter() - started:.1f} s (max |checkpoint - model.pb| {checkpoint_error:.1e})")
 
     latencies, checked16, agree, decisions = [], [], 0, 0
     discrete = policy.metadata.action_space.kind == "discrete"
@@ -99,7 +106,7 @@ def main() -> None:
                                   max_trial_time=args.max_trial_time)
     vehicle = vehicle_preset(policy.config.vehicle)
     runs = {"torch": evaluate_policy(policy, track, settings),
-            "OpenVINO": evaluate_policy(drive_openvino, track, settings, metadata=policy.metadata, vehicle=vehicle)}
+            "OpenVINO": evaluate_policy(drive_openvino, track, settings, spec=policy.spec, vehicle=vehicle)}
     for label, run in runs.items():
         laps = [t.lap_time for t in run.trials if t.status == "lap_complete"]
         shown = ", ".join(f"{t.lap_time:.3f} s" if t.lap_time is not None else f"{t.status} at {t.completion:.1f} %"

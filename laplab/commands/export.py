@@ -94,8 +94,11 @@ def export_deepracer(args: argparse.Namespace) -> int:
                   "car's device console (Models > Upload).")
         else:
             result = export_console(args.model, args.checkpoint, args.out)
-            print(f"wrote {len(result.files)} files into {result.folder} (model/model_*.pb from "
-                  f"{result.graph.checkpoint}; max |TensorFlow - torch| = {result.graph.parity_error:.1e})")
+            print(f"wrote {len(result.files)} files into {result.folder} (model/model_*.pb and rl_coach's "
+                  f"TensorFlow checkpoint model/{result.graph.checkpoint}.* ; max |TensorFlow - torch| = "
+                  f"{result.graph.parity_error:.1e}, |checkpoint - model.pb| = {result.checkpoint_error:.1e})")
+            for note in result.limitations:
+                print(f"note: {note}")
     except (CarExportError, FileNotFoundError) as exc:
         raise UserError(str(exc)) from None
     return 0

@@ -16,6 +16,7 @@ import tarfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -34,13 +35,17 @@ class CarExportError(ValueError):
 @dataclass(frozen=True)
 class CarGraph:
     """A model's policy as DeepRacer's frozen graph: ``data`` (model.pb bytes), the metadata to ship
-    with it, the checkpoint it came from, and the max |TensorFlow - torch| on random observations."""
+    with it, the checkpoint it came from, and the max |TensorFlow - torch| on random observations.
+    ``layers`` / ``value_layers``: the policy's (and PPO's value network's) weights, from which the
+    console's TensorFlow checkpoint is written."""
 
     name: str
     checkpoint: str
     data: bytes
     metadata: dict
     parity_error: float
+    layers: Any = None
+    value_layers: Any = None
 
 
 def check_exportable(metadata: dict, stack_size: int, allowed: tuple[str, ...], where: str) -> None:
@@ -69,7 +74,8 @@ def build_car_graph(name: str, checkpoint: str = "best", allowed: tuple[str, ...
     """Load model ``name`` at ``checkpoint``, check the car can run it, build its graph and check the
     graph against the torch policy (TensorFlow vs torch on 16 random observations)."""
     from laplab.agents.onnx_export import random_observations
-    from laplab.export.policy_layers import policy_layers, reference_output
+    from laplab.agents.networks import ActorCritic
+    from laplab.export.policy_layers import policy_layers, reference_output, value_layers
     from laplab.export.tensorflow_graph import FrozenGraph, graph_bytes, graph_feed, output_node_name
     from laplab.train.policy import load_model_policy
 
@@ -86,7 +92,9 @@ def build_car_graph(name: str, checkpoint: str = "best", allowed: tuple[str, ...
     if not error <= PARITY_TOLERANCE:
         raise CarExportError(f"the TensorFlow graph of {name!r} differs from the torch policy by {error:.3g} "
                              f"(> {PARITY_TOLERANCE}); nothing was written. Please report this as a bug.")
-    return CarGraph(name, policy.checkpoint, data, metadata, error)
+    value = value_layers(policy.network, policy.observation_space, sensors) \
+        if isinstance(policy.network, ActorCritic) else None
+    return CarGraph(name, policy.checkpoint, data, metadata, error, layers, value)
 
 
 def _member(name: str, data: bytes, mtime: float) -> tuple[tarfile.TarInfo, io.BytesIO]:

@@ -2,19 +2,20 @@
 
 ``scripts/upload/upload-model.sh`` (deepracer-for-cloud) uploads, under the target prefix::
 
+    model/<N>_Step-<steps>.ckpt.index, .data-00000-of-00001, .meta   rl_coach's TensorFlow checkpoint
+    model/checkpoint                  TensorFlow's checkpoint state naming it (the simapp's "old" format)
     model/model_metadata.json
     model/model_<N>.pb                the frozen graph of checkpoint N (what the car and evaluation load)
     model/deepracer_checkpoints.json  best_checkpoint = last_checkpoint = the uploaded checkpoint
-    model/.coach_checkpoint           the checkpoint's name
+    model/.coach_checkpoint           the checkpoint's name (rl_coach's CheckpointStateFile)
     model_metadata.json
     reward_function.py
     ip/hyperparameters.json
     metrics/TrainingMetrics.json
     training_params.yaml              (scripts/upload/prepare-config.py)
 
-laplab writes the same files into a local folder. It does not write rl_coach's TensorFlow
-checkpoint (``<N>_Step-<steps>.ckpt.index/.data/.meta``): laplab's weights are torch tensors in
-its own network layout, see docs/car.md.
+laplab writes the same files into a local folder; the checkpoint holds laplab's weights under
+rl_coach's variable names (``laplab.export.tensorflow_checkpoint``, docs/car.md).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from laplab.export.car import CONSOLE_SENSORS, CarExportError, CarGraph, build_car_graph
+from laplab.export.car import CONSOLE_SENSORS, PARITY_SAMPLES, PARITY_TOLERANCE, CarExportError, CarGraph, build_car_graph
 
 
 @dataclass(frozen=True)
@@ -32,6 +33,48 @@ class ConsoleExport:
     folder: Path
     files: tuple[str, ...]  # paths relative to ``folder``
     graph: CarGraph
+    checkpoint_error: float  # max |restored checkpoint - model.pb| on random inputs
+    limitations: tuple[str, ...] = ()  # what DeepRacer's simapp cannot do with the checkpoint (see below)
+
+
+def simapp_limitations(metadata: dict) -> tuple[str, ...]:
+    """Why the simapp (console evaluation, resumed training) could not restore this model's
+    checkpoint, though the car and the console's races run its model.pb (docs/car.md)."""
+    notes = []
+    if metadata.get("training_algorithm") == "sac":
+        notes.append("SAC: DeepRacer's SAC networks differ from laplab's (a dense 256 layer in the policy "
+                     "head; one shared critic embedder and a V network), so the checkpoint holds the policy "
+                     "in laplab's layout and no critics; the simapp cannot evaluate or resume it from the checkpoint")
+    network = metadata.get("neural_network", "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW")
+    if "STEREO_CAMERAS" in metadata.get("sensor", []) and network != "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW":
+        notes.append(f"STEREO_CAMERAS with {network}: DeepRacer uses a five-layer stereo conv scheme there, "
+                     "laplab the camera scheme; the simapp cannot restore the checkpoint (train stereo models "
+                     "with DEEP_CONVOLUTIONAL_NETWORK_SHALLOW for the console)")
+    return tuple(notes)
+
+
+def console_checkpoint(graph: CarGraph) -> tuple[dict[str, bytes], float]:
+    """rl_coach's TensorFlow checkpoint of ``graph``'s weights ({file name: bytes}, for ``model/``),
+    checked by restoring it through its ``checkpoint`` state file and running it against the frozen
+    ``model.pb``; refused when they differ by more than the export's tolerance."""
+    import tempfile
+
+    from laplab.export.tensorflow_checkpoint import checkpoint_files, random_feed, restore_checkpoint
+    from laplab.export.tensorflow_graph import FrozenGraph, output_node_name
+
+    files = checkpoint_files(graph.checkpoint, graph.layers, graph.value_layers).files
+    with tempfile.TemporaryDirectory(prefix="laplab-ckpt-check-") as folder:
+        for name, data in files.items():
+            (Path(folder) / name).write_bytes(data)
+        restored = restore_checkpoint(folder, graph.layers, graph.value_layers)
+    feed = random_feed(graph.layers, PARITY_SAMPLES, seed=1)
+    expected = FrozenGraph(graph.data, output_node_name(graph.layers.algorithm)).run(feed)
+    error = float(abs(restored.run(feed) - expected).max())
+    restored.session.close()
+    if not error <= PARITY_TOLERANCE:
+        raise CarExportError(f"the TensorFlow checkpoint of {graph.name!r} differs from its model.pb by {error:.3g} "
+                             f"(> {PARITY_TOLERANCE}); nothing was written. Please report this as a bug.")
+    return files, error
 
 
 def training_params(config, prefix: str, bucket: str = "bucket") -> str:
@@ -75,19 +118,21 @@ def export_console(name: str, checkpoint: str = "best", out: str | Path | None =
     entry = {"name": graph.checkpoint, "time_stamp": time.time() if record is None else record.time_stamp,
              "avg_eval_metric": None if record is None else record.avg_eval_metric}
     metadata = json.dumps(graph.metadata, indent=2) + "\n"
-    files: dict[str, bytes] = {
+    checkpoint, checkpoint_error = console_checkpoint(graph)
+    files: dict[str, bytes] = {f"model/{file}": data for file, data in checkpoint.items()}
+    files.update({
         "model/model_metadata.json": metadata.encode(),
         f"model/model_{iteration}.pb": graph.data,
         "model/deepracer_checkpoints.json": (json.dumps({"last_checkpoint": entry, "best_checkpoint": entry},
                                                         indent=2) + "\n").encode(),
-        "model/.coach_checkpoint": (graph.checkpoint + "\n").encode(),
+        "model/.coach_checkpoint": graph.checkpoint.encode(),  # as rl_coach writes it: no newline
         "model_metadata.json": metadata.encode(),
         "reward_function.py": source.reward_function.read_bytes(),
         "ip/hyperparameters.json": source.hyperparameters.read_bytes(),
         "training_params.yaml": training_params(config, prefix or name).encode(),
-    }
+    })
     if source.training_metrics.is_file():
         files["metrics/TrainingMetrics.json"] = source.training_metrics.read_bytes()
     for relative, data in files.items():
         atomic_write_bytes(folder / relative, data)
-    return ConsoleExport(folder, tuple(files), graph)
+    return ConsoleExport(folder, tuple(files), graph, checkpoint_error, simapp_limitations(graph.metadata))

@@ -55,7 +55,10 @@ class PolicyLayers:
     """The greedy policy: branches (concatenated in this order), middleware, head, output.
 
     ``output``: ``softmax`` (PPO discrete: action probabilities), ``identity`` (PPO continuous: the
-    Gaussian mean, unclipped) or ``tanh`` (SAC: tanh of the mean). ``algorithm``: clipped_ppo or sac.
+    Gaussian mean, unclipped; a value network: V) or ``tanh`` (SAC: tanh of the mean). ``algorithm``:
+    clipped_ppo or sac. The exploration noise, which the greedy policy does not use but a checkpoint
+    keeps: ``log_std`` (PPO continuous: the state-independent log-std, (A,)) or ``log_std_head``
+    (SAC: the layer giving the log-std from the features).
     """
 
     algorithm: str
@@ -63,6 +66,8 @@ class PolicyLayers:
     middleware: tuple[Dense, ...]
     head: Dense
     output: str
+    log_std: np.ndarray | None = None
+    log_std_head: Dense | None = None
 
     @property
     def action_size(self) -> int:
@@ -113,17 +118,40 @@ def policy_layers(network: Any, observation_space: Any, sensors: Sequence[str]) 
     """The layers of a laplab PPO ``ActorCritic`` or SAC ``SquashedGaussianActor`` trained on
     ``observation_space`` (a Box for one sensor, a Dict keyed by sensor names); ``sensors`` is
     model_metadata.json's sensor list (it names the single sensor of a Box space)."""
-    import gymnasium as gym
-
     from laplab.agents.networks import ActorCritic, SquashedGaussianActor
 
+    log_std, log_std_head = None, None
     if isinstance(network, ActorCritic):
         trunk, head_module, algorithm = network.policy_trunk, network.policy_head, "clipped_ppo"
         output = "softmax" if network.action_spec.discrete else "identity"
+        log_std = None if network.log_std is None else _array(network.log_std)
     elif isinstance(network, SquashedGaussianActor):
         trunk, head_module, algorithm, output = network.trunk, network.mean, "sac", "tanh"
+        log_std_head = Dense(_array(network.log_std.weight).T.copy(), _array(network.log_std.bias), "none")
     else:
         raise TypeError(f"expected a PPO ActorCritic or a SAC SquashedGaussianActor, got {type(network).__name__}")
+    branches, middleware = _trunk_layers(trunk, observation_space, sensors)
+    head = Dense(_array(head_module.weight).T.copy(), _array(head_module.bias), "none")
+    return PolicyLayers(algorithm, branches, middleware, head, output, log_std, log_std_head)
+
+
+def value_layers(network: Any, observation_space: Any, sensors: Sequence[str]) -> PolicyLayers:
+    """The state-value network V(s) of a PPO ``ActorCritic`` (its own trunk when the networks are
+    separate, as DeepRacer's, else the policy's) as layers with a (features, 1) head, output identity."""
+    from laplab.agents.networks import ActorCritic
+
+    if not isinstance(network, ActorCritic):
+        raise TypeError(f"only PPO's ActorCritic has a value network, got {type(network).__name__}")
+    trunk = network.policy_trunk if network.value_trunk is None else network.value_trunk
+    branches, middleware = _trunk_layers(trunk, observation_space, sensors)
+    head = Dense(_array(network.value_head.weight).T.copy(), _array(network.value_head.bias), "none")
+    return PolicyLayers("clipped_ppo", branches, middleware, head, "identity")
+
+
+def _trunk_layers(trunk: Any, observation_space: Any, sensors: Sequence[str]) -> tuple[tuple[SensorBranch, ...],
+                                                                                      tuple[Dense, ...]]:
+    import gymnasium as gym
+
     if isinstance(observation_space, gym.spaces.Dict):
         spaces = dict(observation_space.spaces)
         missing = [name for name in spaces if name not in sensors]
@@ -137,8 +165,7 @@ def policy_layers(network: Any, observation_space: Any, sensors: Sequence[str]) 
     # laplab concatenates the embedders sorted by their key (sensor name; 'observation' for a Box)
     order = sorted(spaces, key=lambda name: keys[name])
     branches = tuple(_branch(name, trunk.sensors[keys[name]], spaces[name]) for name in order)
-    head = Dense(_array(head_module.weight).T.copy(), _array(head_module.bias), "none")
-    return PolicyLayers(algorithm, branches, _dense_layers(trunk.middleware), head, output)
+    return branches, _dense_layers(trunk.middleware)
 
 
 def reference_output(network: Any, observations: Any, raw: bool = True) -> np.ndarray:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import tarfile
 from dataclasses import replace
 from pathlib import Path
@@ -123,28 +124,80 @@ def test_car_archive_loads_on_the_car_and_drives_like_laplab(home, tmp_path, mod
         assert np.abs(np.clip(outputs, -1.0, 1.0) - actions).max() <= 1e-4
 
 
-def test_console_folder_has_the_dr_upload_model_layout(home, tmp_path):
-    result = export_console("cam", "best", tmp_path / "console")
-    folder = result.folder
-    checkpoint = result.graph.checkpoint
+@pytest.fixture(scope="module")
+def console(home, tmp_path_factory):
+    """``laplab export cam --format console`` into a fresh folder."""
+    return export_console("cam", "best", tmp_path_factory.mktemp("export") / "console")
+
+
+def test_console_folder_has_the_dr_upload_model_layout(console):
+    folder = console.folder
+    checkpoint = console.graph.checkpoint
     iteration = checkpoint.split("_")[0]
     files = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
     assert files == sorted(["model/model_metadata.json", f"model/model_{iteration}.pb", "model/deepracer_checkpoints.json",
-                            "model/.coach_checkpoint", "model_metadata.json", "reward_function.py",
-                            "ip/hyperparameters.json", "metrics/TrainingMetrics.json", "training_params.yaml"])
+                            "model/.coach_checkpoint", f"model/{checkpoint}.index",
+                            f"model/{checkpoint}.data-00000-of-00001", f"model/{checkpoint}.meta", "model/checkpoint",
+                            "model_metadata.json", "reward_function.py", "ip/hyperparameters.json",
+                            "metrics/TrainingMetrics.json", "training_params.yaml"])
     source = model_folder("cam")
-    records = json.loads((folder / "model/deepracer_checkpoints.json").read_text())
-    assert records["best_checkpoint"]["name"] == records["last_checkpoint"]["name"] == checkpoint
-    assert (folder / "model/.coach_checkpoint").read_text().strip() == checkpoint
     assert (folder / "model/model_metadata.json").read_bytes() == (folder / "model_metadata.json").read_bytes()
     assert json.loads((folder / "model_metadata.json").read_text()) == source.read_model_metadata()
     assert (folder / "reward_function.py").read_bytes() == source.reward_function.read_bytes()
+    assert (folder / "ip/hyperparameters.json").read_bytes() == source.hyperparameters.read_bytes()
     yaml = pytest.importorskip("yaml")
     params = yaml.safe_load((folder / "training_params.yaml").read_text())
     assert params["WORLD_NAME"] == TrainConfig().track and params["RACE_TYPE"] == "TIME_TRIAL"
     assert params["MODEL_METADATA_FILE_S3_KEY"] == "cam/model/model_metadata.json"
     with pytest.raises(CarExportError, match="not an empty folder"):
         export_console("cam", "best", folder)
+
+
+def test_console_checkpoint_is_found_and_restored_as_deepracer_tooling_does(console):
+    """The checkpoint is named alike by rl_coach's .coach_checkpoint, deepracer_checkpoints.json and
+    TensorFlow's state file; dr-upload-model and the simapp pick exactly its files; TensorFlow
+    restores it into rl_coach's networks, which act as laplab's torch policy and value."""
+    tf = pytest.importorskip("tensorflow")
+    import torch
+
+    from laplab.agents.networks import observation_to_tensor
+    from laplab.agents.onnx_export import random_observations
+    from laplab.export.policy_layers import reference_output, value_layers
+    from laplab.export.tensorflow_checkpoint import restore_checkpoint
+
+    model = console.folder / "model"
+    # rl_coach's CheckpointStateFile / CheckpointFilenameParser: the name and number of the checkpoint
+    coach = re.match(r"\A(([0-9]+)[^0-9])?.*?\.ckpt(-([0-9]+))?", (model / ".coach_checkpoint").read_text()[:256])
+    name, number = coach.group(0), int(coach.group(2))
+    assert name == console.graph.checkpoint and (model / ".coach_checkpoint").read_text() == name
+    # deepracer_checkpoints.json (the simapp reads the number before "_Step")
+    records = json.loads((model / "deepracer_checkpoints.json").read_text())
+    assert records["best_checkpoint"]["name"] == records["last_checkpoint"]["name"] == name
+    assert int(records["last_checkpoint"]["name"].split("_Step")[0]) == number
+    assert isinstance(records["last_checkpoint"]["time_stamp"], float)
+    # TensorFlow's state file ("checkpoint", the simapp's old coach checkpoint: its quoted name)
+    assert re.findall(r'"(.*?)"', (model / "checkpoint").read_text().splitlines()[0]) == [name]
+    assert tf.train.latest_checkpoint(str(model)) == str(model / name)
+    # dr-upload-model copies "<N>*" and model_<N>.pb; the simapp downloads the files starting with the name, .pb aside
+    uploaded = sorted(p.name for p in model.iterdir() if p.name.startswith(str(number)) or p.name == f"model_{number}.pb")
+    assert uploaded == sorted([f"{name}.data-00000-of-00001", f"{name}.index", f"{name}.meta", f"model_{number}.pb"])
+    assert any(re.fullmatch(rf"{number}_Step-[0-9]{{1,7}}\.ckpt\.index", p) for p in uploaded)
+    variables = [variable for variable, _ in tf.train.list_variables(str(model))]
+    assert variables and all(v.startswith("main_level/agent/main/online/network_") for v in variables)
+    # restored into rl_coach's networks: laplab's torch policy and value
+    policy = load_model_policy("cam")
+    graph = restore_checkpoint(model, console.graph.layers, console.graph.value_layers)
+    observations = random_observations(policy.observation_space, 20, seed=9)
+    feed = graph_feed(console.graph.layers, observations)
+    assert np.abs(graph.run(feed) - reference_output(policy.network, observations)).max() <= 1e-5
+    with torch.no_grad():
+        value = policy.network.value(observation_to_tensor(observations, "cpu")).numpy()
+    assert np.abs(graph.run_value(feed) - value).max() <= 1e-5
+    sensors = list(policy.metadata.sensors)
+    assert np.array_equal(value_layers(policy.network, policy.observation_space, sensors).head.kernel,
+                          console.graph.value_layers.head.kernel)
+    assert console.checkpoint_error <= 1e-5
+    assert console.limitations == ()  # a front-camera PPO model: the simapp restores all of it
 
 
 def test_models_the_car_cannot_run_are_refused(home, tmp_path, capsys):

@@ -8,7 +8,7 @@ CODE = """
 import sys
 import laplab.cli, laplab.commands.export, laplab.store.robomaker_log
 import laplab.export.car, laplab.export.console, laplab.export.tensorflow_graph, laplab.export.openvino_model
-import laplab.export.policy_layers
+import laplab.export.policy_layers, laplab.export.tensorflow_checkpoint
 print(sorted(m for m in ('torch', 'tensorflow', 'openvino') if m in sys.modules))
 """
 
