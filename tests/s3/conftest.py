@@ -35,17 +35,19 @@ def bucket(s3_server):
     return BUCKET
 
 
-@pytest.fixture
-def s3_env(s3_server, bucket, tmp_path, monkeypatch):
-    """Endpoint and credentials in the environment, a private LAPLAB_HOME; returns the client."""
+@pytest.fixture(scope="module")
+def s3_env(s3_server, bucket, tmp_path_factory):
+    """Endpoint and credentials in the environment, a private LAPLAB_HOME (for the module); returns a
+    boto3 client of the server."""
     import boto3
-    for name, value in (("AWS_ENDPOINT_URL", s3_server), ("AWS_ACCESS_KEY_ID", "testing"),
-                        ("AWS_SECRET_ACCESS_KEY", "testing"), ("AWS_DEFAULT_REGION", "us-east-1"),
-                        ("LAPLAB_HOME", str(tmp_path / "home"))):
-        monkeypatch.setenv(name, value)
-    for name in ("LAPLAB_STORE", "LAPLAB_MODELS", "AWS_PROFILE", "AWS_SESSION_TOKEN"):
-        monkeypatch.delenv(name, raising=False)
-    return boto3.client("s3", endpoint_url=s3_server)
+    with pytest.MonkeyPatch.context() as patch:
+        for name, value in (("AWS_ENDPOINT_URL", s3_server), ("AWS_ACCESS_KEY_ID", "testing"),
+                            ("AWS_SECRET_ACCESS_KEY", "testing"), ("AWS_DEFAULT_REGION", "us-east-1"),
+                            ("LAPLAB_HOME", str(tmp_path_factory.mktemp("home")))):
+            patch.setenv(name, value)
+        for name in ("LAPLAB_STORE", "LAPLAB_MODELS", "AWS_PROFILE", "AWS_SESSION_TOKEN"):
+            patch.delenv(name, raising=False)
+        yield boto3.client("s3", endpoint_url=s3_server)
 
 
 @pytest.fixture
@@ -54,10 +56,10 @@ def store_url(s3_env, bucket) -> str:
     return f"s3://{bucket}/runs-{secrets.token_hex(3)}/models"
 
 
-@pytest.fixture
-def tiny_hp(tmp_path) -> Path:
+@pytest.fixture(scope="module")
+def tiny_hp(tmp_path_factory) -> Path:
     """A hyperparameters.json with 2 episodes per iteration and three epochs (iterations of ~1 s)."""
-    path = tmp_path / "hyperparameters.json"
+    path = tmp_path_factory.mktemp("hp") / "hyperparameters.json"
     path.write_text(json.dumps({**TrainConfig().hyper().to_dict(), **TINY_HP}))
     return path
 

@@ -30,7 +30,9 @@ def test_train_evaluate_report_export_clone_resume_leaderboard_from_the_store(st
                                          "/m1/model/deepracer_checkpoints.json")["Body"].read())
     assert f"m1/model/{index['last_checkpoint']['name']}" in stored
     assert f"m1/model/{index['best_checkpoint']['name']}" in stored
-    home = tmp_path / "home"
+    import os
+    from pathlib import Path
+    home = Path(os.environ["LAPLAB_HOME"])
     assert not (home / "models").exists()  # nothing in the local models folder
     assert not any((home / "cache" / "store").iterdir())  # the working copy is gone
 
