@@ -95,7 +95,8 @@ class ObjectStore:
         # Few retries and short timeouts: a wrong endpoint fails in seconds, not minutes.
         config = Config(retries={"max_attempts": 3, "mode": "standard"}, connect_timeout=5, read_timeout=60,
                         s3={"addressing_style": "path"} if self.endpoint else None)
-        self.client = boto3.client("s3", endpoint_url=self.endpoint, config=config)
+        # A session of its own: boto3's default session keeps the credentials it found first.
+        self.client = boto3.session.Session().client("s3", endpoint_url=self.endpoint, config=config)
 
     # -- errors --------------------------------------------------------------------------------
 
