@@ -166,10 +166,9 @@ def run_train(args: argparse.Namespace) -> int:
             values["precision"] = args.precision
             listeners = store.create_job(args.name) if store else ()
             trainer = create_training(args.name, replace(TrainConfig(), **values), listeners=listeners)
-        code = run_trainer(trainer, console, args.quiet, args.reward_timeout)
         if store:
-            console.print(f"model in the store: {store.remote.url(trainer.folder.name)}")
-        return code
+            trainer.location = store.remote.url(trainer.folder.name)  # what the summary names
+        return run_trainer(trainer, console, args.quiet, args.reward_timeout)
 
 
 def run_clone(args: argparse.Namespace) -> int:
@@ -185,7 +184,6 @@ def run_clone(args: argparse.Namespace) -> int:
         listeners = store.create_job(args.name) if store else ()
         trainer = create_training(args.name, config, init_weights=weights, listeners=listeners)
         console.print(f"cloned {args.source} -> {args.name}")
-        code = run_trainer(trainer, console, args.quiet, args.reward_timeout)
         if store:
-            console.print(f"model in the store: {store.remote.url(args.name)}")
-        return code
+            trainer.location = store.remote.url(args.name)  # what the summary names
+        return run_trainer(trainer, console, args.quiet, args.reward_timeout)

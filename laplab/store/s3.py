@@ -86,8 +86,12 @@ class ObjectStore:
     """Files under one bucket prefix: put, get, list, delete, conditional writes (boto3's S3 client)."""
 
     def __init__(self, location: S3Location, endpoint: str | None = None):
-        import boto3
-        from botocore.config import Config
+        try:
+            import boto3
+            from botocore.config import Config
+        except ImportError:
+            raise StoreError(f"--store {location.url()} needs boto3, which is not installed: "
+                             "`pip install 'laplab[store]'` (or `pip install boto3`).") from None
         self.location = location
         self.endpoint = endpoint if endpoint is not None else endpoint_url()
         where = self.endpoint or "AWS S3"
