@@ -59,7 +59,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from laplab.commands.store_option import evaluations_only, store_session
+    from laplab.commands.store_option import evaluations_only, store_session, without_traces
 
     console = Console(highlight=False, soft_wrap=True)
     with store_session(args, "evaluate") as store:
@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
                 store.pull(args.model, (), evaluations_only)
             return _list(args, console)
         if store:
-            store.pull(args.model, (args.checkpoint,), publish=True)
+            store.pull(args.model, (args.checkpoint,), without_traces, publish=True)
         code = _evaluate(args, console, store.remote.url(args.model) if store else None)
     return code
 

@@ -104,10 +104,10 @@ def export_deepracer(args: argparse.Namespace) -> int:
 
 
 def export_command(args: argparse.Namespace) -> int:
-    from laplab.commands.store_option import store_session
+    from laplab.commands.store_option import store_session, without_traces
     with store_session(args, "export") as store:
         if store:
-            store.pull(args.model, (args.checkpoint,))
+            store.pull(args.model, (args.checkpoint,), without_traces)
         return _export(args)
 
 

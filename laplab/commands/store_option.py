@@ -40,6 +40,14 @@ def evaluations_only(rel: str) -> bool:
             or (rel.startswith("evaluation-") and rel.endswith("/summary.json")))
 
 
+def without_traces(rel: str) -> bool:
+    """What evaluate, export and clone read: all but simtrace, logs, videos and reports (the bulk of a
+    model besides its checkpoints); evaluation summaries stay, so a new evaluation gets a fresh stamp."""
+    parts = rel.split("/")
+    return not ("training-simtrace" in parts or "evaluation-simtrace" in parts or parts[0] in ("logs", "report")
+                or rel.endswith(".mp4"))
+
+
 class StoreSession:
     """One command's use of the store at ``url``: pulls, jobs' locks and syncs, the local copy."""
 
@@ -89,7 +97,7 @@ class StoreSession:
             raise UserError(f"a model named {name!r} already exists in the store ({self.remote.url(name)}); "
                             f"models are immutable: pick another name, `laplab clone {name} NEW --store "
                             f"{self.url}`, or `laplab train --resume {name} --store {self.url}`.")
-        sync = FolderSync(self.remote, name, self.folder(name), delete=True)
+        sync = FolderSync(self.remote, name, self.folder(name), delete=True, background=True)
         self.syncs.append(sync)
         return (sync,)
 
@@ -98,7 +106,7 @@ class StoreSession:
         validate_model_name(name)
         self._lock(name)
         folder = self.remote.pull(name, self.root, ("best", "last"))
-        sync = FolderSync(self.remote, name, folder, FolderSync.baseline(folder), delete=True)
+        sync = FolderSync(self.remote, name, folder, FolderSync.baseline(folder), delete=True, background=True)
         self.syncs.append(sync)
         return (sync,)
 

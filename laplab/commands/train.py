@@ -174,12 +174,12 @@ def run_train(args: argparse.Namespace) -> int:
 def run_clone(args: argparse.Namespace) -> int:
     from laplab.train.jobs import clone_config, create_training
 
-    from laplab.commands.store_option import store_session
+    from laplab.commands.store_option import store_session, without_traces
 
     console = Console(highlight=False, soft_wrap=True)
     with store_session(args, "clone") as store:
         if store:
-            store.pull(args.source, ("best",))
+            store.pull(args.source, ("best",), without_traces)
         config, weights = clone_config(args.source, _overrides(args), trust_reward=args.trust_reward)
         listeners = store.create_job(args.name) if store else ()
         trainer = create_training(args.name, config, init_weights=weights, listeners=listeners)

@@ -22,6 +22,8 @@ from __future__ import annotations
 import json
 import os
 import sys
+import threading
+import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -138,17 +140,31 @@ class FolderSync:
     the job removed (a job that owns the model; readers never delete). Also a trainer listener: it
     publishes after every event, so subscribe it after the recorder that writes the folder. An upload
     that fails is retried at the next event and at :meth:`finish`, which raises if it still fails.
+
+    ``background``: publish from a thread of its own, so the job does not wait for the network (an
+    event only wakes it; passes do not overlap; :meth:`finish` waits for the last one). A log file the
+    job is appending to may then go up half-written and is uploaded again by the next pass; the
+    checkpoints and their index keep their order (each pass snapshots the index and uploads it only
+    once every checkpoint it names is in the bucket).
     """
 
     def __init__(self, remote: RemoteModels, name: str, folder: ModelFolder,
                  known: dict[str, tuple[int, int]] | None = None, delete: bool = False,
-                 log: Callable[[str], None] | None = None):
+                 log: Callable[[str], None] | None = None, background: bool = False):
         self.remote, self.name, self.folder = remote, name, folder
         self.known = dict(known or {})
         self.delete = delete
+        self._wake = threading.Event()
+        self._closing = False
+        self._thread: threading.Thread | None = None
+        if background:
+            self._thread = threading.Thread(target=self._publish_in_background, name=f"laplab-sync-{name}",
+                                            daemon=True)
+            self._thread.start()
         self.log = log or (lambda text: print(f"laplab: {text}", file=sys.stderr))
         self.failure: StoreError | None = None
-        self.uploads = 0
+        self.uploads = 0  # files uploaded so far
+        self.seconds = 0.0  # wall time spent publishing, s
 
     @staticmethod
     def baseline(folder: ModelFolder) -> dict[str, tuple[int, int]]:
@@ -157,10 +173,14 @@ class FolderSync:
 
     def sync(self) -> int:
         """Publish what changed since the last call; returns the number of files uploaded."""
-        for _ in range(_ATTEMPTS):
-            done = self._pass()
-            if done is not None:
-                return done
+        started = time.perf_counter()
+        try:
+            for _ in range(_ATTEMPTS):
+                done = self._pass()
+                if done is not None:
+                    return done
+        finally:
+            self.seconds += time.perf_counter() - started
         raise StoreError(f"the checkpoints of {self.folder.root} kept changing while they were uploaded to "
                          f"{self.remote.url(self.name)}; try again.")
 
@@ -175,9 +195,15 @@ class FolderSync:
         changed.sort(key=lambda rel: (not is_checkpoint(rel), rel))
         uploaded = 0
         for rel in changed:
-            if not (self.folder.root / rel).is_file():
-                continue  # removed meanwhile (a pruned checkpoint): a later scan sees it gone
-            self.remote.store.put_file(self.remote.model_key(self.name, rel), self.folder.root / rel)
+            path = self.folder.root / rel
+            try:
+                self.remote.store.put_file(self.remote.model_key(self.name, rel), path)
+            except (StoreError, OSError) as exc:
+                if not path.is_file():
+                    continue  # removed meanwhile (a pruned checkpoint): a later scan sees it gone
+                if isinstance(exc, StoreError):
+                    raise
+                raise StoreError(f"cannot upload {path}: {exc}") from None
             self.known[rel] = current[rel]
             uploaded += 1
         if index_bytes is not None:
@@ -210,10 +236,30 @@ class FolderSync:
                 self.log(f"upload to {self.remote.url(self.name)} works again")
             self.failure = None
 
-    on_checkpoint = on_episodes = on_iteration = on_error = _safe_sync
+    def _publish_in_background(self) -> None:
+        while True:
+            self._wake.wait()
+            self._wake.clear()
+            if self._closing:
+                return
+            self._safe_sync()
+
+    def _request(self, _event=None) -> None:
+        if self._thread is None:
+            self._safe_sync()
+        else:
+            self._wake.set()
+
+    on_checkpoint = on_episodes = on_iteration = on_error = _request
 
     def finish(self) -> None:
-        """The last publication (raises :class:`StoreError` if it still fails)."""
+        """The last publication, after the background pass under way (raises :class:`StoreError` if it
+        still fails)."""
+        if self._thread is not None:
+            self._closing = True
+            self._wake.set()
+            self._thread.join()
+            self._thread = None
         try:
             self.sync()
         except StoreError as exc:
