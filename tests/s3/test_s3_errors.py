@@ -129,3 +129,26 @@ def test_store_errors_name_the_key(s3_env):
     store = ObjectStore(parse_store_url(f"s3://{BUCKET}/x"))
     with pytest.raises(StoreError, match=f"s3://{BUCKET}/x/nothing.json does not exist"):
         store.get_bytes("x/nothing.json")
+
+
+def test_a_failing_upload_is_reported_once_retried_and_the_copy_kept(s3_env, tmp_path):
+    """The bucket disappears under a job: its events keep going (training is not stopped), the failure
+    is logged once, and the final publication fails with a paragraph naming the kept local copy."""
+    from laplab.store.layout import ModelFolder
+    from laplab.store.remote import FolderSync, RemoteModels
+    s3_env.create_bucket(Bucket="vanishing")
+    remote = RemoteModels(ObjectStore(parse_store_url("s3://vanishing/models")))
+    folder = ModelFolder(tmp_path / "m1").create()
+    folder.write_laplab_config({"track": "oval"})
+    messages = []
+    sync = FolderSync(remote, "m1", folder, delete=True, log=messages.append)
+    sync.on_checkpoint(None)
+    assert remote.exists("m1")
+    s3_env.delete_object(Bucket="vanishing", Key="models/m1/laplab.json")
+    s3_env.delete_bucket(Bucket="vanishing")
+    for _ in range(2):
+        folder.write_error("boom")
+        sync.on_iteration(None)  # no exception: the job goes on
+    assert len(messages) == 1 and "retried after the next iteration" in messages[0] and "vanishing" in messages[0]
+    with pytest.raises(StoreError, match=f"kept in {folder.root}"):
+        sync.finish()
