@@ -88,14 +88,19 @@ class RemoteModels:
         folder = ModelFolder(Path(root) / validate_model_name(name))
         wanted = tuple(checkpoints)
         for attempt in range(_ATTEMPTS):
+            # The index before the listing: a checkpoint it names was uploaded before it, so the
+            # listing has it unless it was pruned meanwhile (then look again).
+            index = self._read_index(name) if wanted else None
             files = self.listing(name)
             if not any(marker in files for marker in _MARKERS):
                 raise self.missing(name)
-            index = self._read_index(name) if INDEX_NAME in files and wanted else None
             names = self._checkpoint_names(index, wanted)
+            indexed = self._checkpoint_names(index, tuple(w for w in wanted if w in ("best", "last")))
+            if any(f"model/{n}" not in files for n in indexed) and attempt < _ATTEMPTS - 1:
+                continue
             try:
                 for rel in sorted(files, key=lambda r: (r == INDEX_NAME, r)):  # the index last
-                    if _hidden(rel) or (include is not None and not include(rel)):
+                    if rel.endswith("/") or _hidden(rel) or (include is not None and not include(rel)):
                         continue
                     if is_checkpoint(rel) and rel.removeprefix("model/") not in names:
                         continue
