@@ -161,15 +161,15 @@ class FolderSync:
         self.delete = delete
         self._wake = threading.Event()
         self._closing = False
+        self.log = log or (lambda text: print(f"laplab: {text}", file=sys.stderr))
+        self.failure: StoreError | None = None
+        self.uploads = 0  # files uploaded so far
+        self.seconds = 0.0  # wall time spent publishing, s
         self._thread: threading.Thread | None = None
         if background:
             self._thread = threading.Thread(target=self._publish_in_background, name=f"laplab-sync-{name}",
                                             daemon=True)
             self._thread.start()
-        self.log = log or (lambda text: print(f"laplab: {text}", file=sys.stderr))
-        self.failure: StoreError | None = None
-        self.uploads = 0  # files uploaded so far
-        self.seconds = 0.0  # wall time spent publishing, s
 
     @staticmethod
     def baseline(folder: ModelFolder) -> dict[str, tuple[int, int]]:
