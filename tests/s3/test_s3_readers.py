@@ -155,3 +155,24 @@ def test_per_worker_simtrace_folders_are_published_as_drfc_writes_them(published
     assert handler.type == LogFolderType.DRFC_MODEL_MULTIPLE_WORKERS
     log.load_training_trace()
     assert sorted(log.dataframe()["worker"].unique()) == [0, 1]
+
+
+def test_background_publication_keeps_the_order_while_checkpoints_are_saved_and_pruned(s3_env, tmp_path):
+    """A job saving (and pruning) checkpoints faster than they upload: every index written to the
+    bucket names checkpoints already there, and the last state is published at finish()."""
+    from laplab.store.checkpoints import CheckpointParams, CheckpointStore
+    url = f"s3://{BUCKET}/background/models"
+    store = OrderCheckingStore(parse_store_url(url))
+    folder = ModelFolder(tmp_path / "bg").create()
+    folder.write_laplab_config({"track": "oval"})
+    sync = FolderSync(RemoteModels(store), "bg", folder, delete=True, background=True)
+    checkpoints = CheckpointStore(folder, CheckpointParams(keep_last=2))
+    for iteration in range(12):
+        checkpoints.save(bytes(200_000), iteration=iteration, steps=10 * iteration, metric=float(iteration % 5))
+        sync.on_checkpoint(None)
+    sync.finish()
+    assert store.index_writes >= 1 and not store.problems
+    stored = keys(store.client, url)
+    assert {k for k in stored if k.endswith(".ckpt")} == {f"bg/model/{n}" for n in checkpoints.names()}
+    index = json.loads(store.get_bytes(store.location.key("bg", INDEX_NAME)))
+    assert index["last_checkpoint"]["name"] == "11_Step-110.ckpt"
