@@ -51,18 +51,31 @@ def register(subparsers) -> None:
     parser.add_argument("--video", action="store_true", help="write a video of the first trial")
     parser.add_argument("--list", action="store_true", help="list the model's evaluations instead of running one")
     parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    from laplab.commands.store_option import add_store_option
     from laplab.commands.train import add_limit_options
+    add_store_option(parser)
     add_limit_options(parser, reward=False)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from laplab.errors import UserError
-    from laplab.evaluate.trials import EvaluationError, EvaluationSettings, evaluate_model
+    from laplab.commands.store_option import evaluations_only, store_session, without_traces
 
     console = Console(highlight=False, soft_wrap=True)
-    if args.list:
-        return _list(args, console)
+    with store_session(args, "evaluate") as store:
+        if args.list:
+            if store:
+                store.pull(args.model, (), evaluations_only)
+            return _list(args, console)
+        if store:
+            store.pull(args.model, (args.checkpoint,), without_traces, publish=True)
+        code = _evaluate(args, console, store.remote.url(args.model) if store else None)
+    return code
+
+
+def _evaluate(args: argparse.Namespace, console: Console, store_url: str | None) -> int:
+    from laplab.errors import UserError
+    from laplab.evaluate.trials import EvaluationError, EvaluationSettings, evaluate_model
     from laplab.jobs.supervisor import report
     report(model=args.model, what="evaluation")
     try:
@@ -79,11 +92,11 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"stamp": stamp, **result.to_dict()}, indent=2))
         return 0
-    print_evaluation(console, result, stamp, folder)
+    print_evaluation(console, result, stamp, folder, store_url)
     return 0
 
 
-def print_evaluation(console: Console, result, stamp: str, folder) -> None:
+def print_evaluation(console: Console, result, stamp: str, folder, store_url: str | None = None) -> None:
     from laplab.evaluate.summary import summary_lines, trials_table
     s = result.settings
     resets = "unlimited" if s.resets is None else str(s.resets)
@@ -93,7 +106,8 @@ def print_evaluation(console: Console, result, stamp: str, folder) -> None:
     console.print(trials_table(result.trials, result.summary.optimal_lap_time, title=title))
     for line in summary_lines(result.summary):
         console.print(line)
-    console.print(f"evaluation {stamp}: {folder.evaluation_dir(stamp)}")
+    where = f"{store_url}{folder.evaluation_dir(stamp).name}/" if store_url else folder.evaluation_dir(stamp)
+    console.print(f"evaluation {stamp}: {where}")
     if result.video:
         console.print(f"video: {result.video}")
 

@@ -28,6 +28,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     export.add_argument("--out", type=Path, help="tar, car: the archive file or a folder for it (default "
                                                  "./MODEL.tar.gz); onnx: the folder (default ./MODEL-onnx); "
                                                  "console: a new or empty folder (default ./MODEL-console)")
+    from laplab.commands.store_option import add_store_option
+    add_store_option(export)
     export.set_defaults(func=export_command)
 
     imp = subparsers.add_parser(
@@ -105,6 +107,14 @@ def export_deepracer(args: argparse.Namespace) -> int:
 
 
 def export_command(args: argparse.Namespace) -> int:
+    from laplab.commands.store_option import store_session, without_traces
+    with store_session(args, "export") as store:
+        if store:
+            store.pull(args.model, (args.checkpoint,), without_traces)
+        return _export(args)
+
+
+def _export(args: argparse.Namespace) -> int:
     from laplab.store.archive import ArchiveError
     from laplab.train.archive import export_model_archive
     if args.format in ("car", "console"):

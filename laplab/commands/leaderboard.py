@@ -18,6 +18,8 @@ def register(subparsers) -> None:
                     "laps, then best lap, then completion. Run `laplab evaluate MODEL` to add evaluations.")
     parser.add_argument("--track", help="only this track (name as evaluated, e.g. classic_2018 or NAME@reversed)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    from laplab.commands.store_option import add_store_option
+    add_store_option(parser)
     parser.set_defaults(func=run)
 
 
@@ -27,10 +29,14 @@ def run(args: argparse.Namespace) -> int:
     from laplab.evaluate.summary import format_gap, format_seconds
     from laplab.evaluate.trials import EvaluationError
 
-    try:
-        boards = leaderboard(args.track)
-    except EvaluationError as exc:
-        raise UserError(str(exc)) from None
+    from laplab.commands.store_option import evaluations_only, store_session
+    with store_session(args, "leaderboard") as store:
+        if store:
+            store.pull_all(evaluations_only)
+        try:
+            boards = leaderboard(args.track)
+        except EvaluationError as exc:
+            raise UserError(str(exc)) from None
     if args.json:
         print(json.dumps([{"track": track, "entries": [e.to_dict() for e in entries]}
                           for track, entries in boards.items()], indent=2))

@@ -21,6 +21,8 @@ def register(subparsers) -> None:
                         help="draw the episodes of the last N iterations on the track (default 3)")
     parser.add_argument("--evaluations", type=int, default=6, metavar="N",
                         help="show the newest N evaluations (default 6)")
+    from laplab.commands.store_option import add_store_option
+    add_store_option(parser)
     parser.set_defaults(func=run_report)
 
 
@@ -49,11 +51,18 @@ def run_report(args: argparse.Namespace) -> int:
     for option, value in (("--iterations", args.iterations), ("--evaluations", args.evaluations)):
         if value < 1:
             raise UserError(f"{option} must be at least 1, got {value}.")
-    folder = _resolve_folder(args.model)
-    settings = replace(ReportSettings(), recent_iterations=args.iterations, max_evaluations=args.evaluations)
-    try:
-        index = build_report(folder, args.out, track=args.track, settings=settings)
-    except ReportDataError as exc:
-        raise UserError(f"cannot build the report of {folder.root}: {exc}") from None
+    from laplab.commands.store_option import store_session
+    with store_session(args, "report") as store:
+        out = args.out
+        if store:  # the local copy goes away with the command: the page is written here by default
+            folder = store.pull(args.model, ())
+            out = out if out is not None else Path.cwd() / f"{args.model}-report"
+        else:
+            folder = _resolve_folder(args.model)
+        settings = replace(ReportSettings(), recent_iterations=args.iterations, max_evaluations=args.evaluations)
+        try:
+            index = build_report(folder, out, track=args.track, settings=settings)
+        except ReportDataError as exc:
+            raise UserError(f"cannot build the report of {folder.root}: {exc}") from None
     print(index)
     return 0

@@ -21,6 +21,8 @@ def _add_job_options(parser: argparse.ArgumentParser, defaults: bool) -> None:
     parser.add_argument("--max-time", default="20m" if defaults else none, help="stop after this long (e.g. 90s, 20m, 1h)")
     parser.add_argument("--max-episodes", type=int, default=none, help="stop after this many training episodes")
     parser.add_argument("--seed", type=int, default=0 if defaults else none, help="random seed")
+    from laplab.commands.store_option import add_store_option
+    add_store_option(parser)
 
 
 def add_limit_options(parser: argparse.ArgumentParser, reward: bool = True) -> None:
@@ -141,32 +143,47 @@ def run_train(args: argparse.Namespace) -> int:
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import create_training, resume_training
 
+    from laplab.commands.store_option import store_session
+
     console = Console(highlight=False, soft_wrap=True)
-    if args.resume:
-        if args.name:
-            raise UserError("give either --name (a new model) or --resume NAME, not both")
-        overrides = _overrides(args)
-        if args.reward:
-            raise UserError("a resumed job keeps its reward function; to train with another one, "
-                            f"`laplab clone {args.resume} NEW --reward FILE`")
-        trainer = resume_training(args.resume, overrides["max_time_s"], overrides["max_episodes"],
-                                  trust_reward=args.trust_reward)
-        console.print(f"resuming {args.resume} at iteration {trainer.iteration} ({trainer.episodes} episodes)")
-    else:
-        if not args.name:
-            raise UserError("name the new model with --name NAME (or continue one with --resume NAME)")
-        values = {k: v for k, v in _overrides(args).items() if v is not None}
-        values["domain_randomization"] = bool(args.domain_randomization)
-        values["precision"] = args.precision
-        trainer = create_training(args.name, replace(TrainConfig(), **values))
-    return run_trainer(trainer, console, args.quiet, args.reward_timeout)
+    if args.resume and args.name:
+        raise UserError("give either --name (a new model) or --resume NAME, not both")
+    if not args.resume and not args.name:
+        raise UserError("name the new model with --name NAME (or continue one with --resume NAME)")
+    with store_session(args, "train") as store:
+        if args.resume:
+            overrides = _overrides(args)
+            if args.reward:
+                raise UserError("a resumed job keeps its reward function; to train with another one, "
+                                f"`laplab clone {args.resume} NEW --reward FILE`")
+            listeners = store.resume_job(args.resume) if store else ()
+            trainer = resume_training(args.resume, overrides["max_time_s"], overrides["max_episodes"],
+                                      trust_reward=args.trust_reward, listeners=listeners)
+            console.print(f"resuming {args.resume} at iteration {trainer.iteration} ({trainer.episodes} episodes)")
+        else:
+            values = {k: v for k, v in _overrides(args).items() if v is not None}
+            values["domain_randomization"] = bool(args.domain_randomization)
+            values["precision"] = args.precision
+            listeners = store.create_job(args.name) if store else ()
+            trainer = create_training(args.name, replace(TrainConfig(), **values), listeners=listeners)
+        if store:
+            trainer.location = store.remote.url(trainer.folder.name)  # what the summary names
+        return run_trainer(trainer, console, args.quiet, args.reward_timeout)
 
 
 def run_clone(args: argparse.Namespace) -> int:
     from laplab.train.jobs import clone_config, create_training
 
+    from laplab.commands.store_option import store_session, without_traces
+
     console = Console(highlight=False, soft_wrap=True)
-    config, weights = clone_config(args.source, _overrides(args), trust_reward=args.trust_reward)
-    trainer = create_training(args.name, config, init_weights=weights)
-    console.print(f"cloned {args.source} -> {args.name}")
-    return run_trainer(trainer, console, args.quiet, args.reward_timeout)
+    with store_session(args, "clone") as store:
+        if store:
+            store.pull(args.source, ("best",), without_traces)
+        config, weights = clone_config(args.source, _overrides(args), trust_reward=args.trust_reward)
+        listeners = store.create_job(args.name) if store else ()
+        trainer = create_training(args.name, config, init_weights=weights, listeners=listeners)
+        console.print(f"cloned {args.source} -> {args.name}")
+        if store:
+            trainer.location = store.remote.url(args.name)  # what the summary names
+        return run_trainer(trainer, console, args.quiet, args.reward_timeout)

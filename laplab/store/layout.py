@@ -226,8 +226,15 @@ def _require_keys(document: Any, keys: tuple[str, ...], file_name: str) -> None:
         raise ValueError(f"{file_name} lacks required key(s) {missing}; present keys: {sorted(document)}")
 
 
+MODELS_ROOT_ENV = "LAPLAB_MODELS"  # set by `--store s3://...` commands to their local working copy
+
+
 def models_root() -> Path:
-    """`$LAPLAB_HOME/models`, default `~/.laplab/models` (not created here)."""
+    """`$LAPLAB_MODELS` when set (the local working copy of an object store's models, see remote.py),
+    else `$LAPLAB_HOME/models`, default `~/.laplab/models` (not created here)."""
+    override = os.environ.get(MODELS_ROOT_ENV)
+    if override:
+        return Path(override).expanduser()
     home = os.environ.get("LAPLAB_HOME") or "~/.laplab"
     return Path(home).expanduser() / "models"
 

@@ -44,10 +44,12 @@ def load_and_validate_reward(config: TrainConfig, track: Track, path: Path | Non
     return reward_fn
 
 
-def create_training(name: str, config: TrainConfig, init_weights: dict | None = None) -> Trainer:
+def create_training(name: str, config: TrainConfig, init_weights: dict | None = None,
+                    listeners: tuple = ()) -> Trainer:
     """Validate everything, create the model folder and return a :class:`Trainer` for it.
 
     Refuses an existing name (a model is immutable). Nothing is written before validation passes.
+    ``listeners`` are subscribed after the folder's recorders (e.g. an object store's sync).
     """
     validate_model_name(name)
     folder = model_folder(name)
@@ -78,7 +80,7 @@ def create_training(name: str, config: TrainConfig, init_weights: dict | None = 
         shutil.rmtree(staging.root, ignore_errors=True)
         raise
     lock.root = folder.root
-    return _start(folder, config, reward_fn, track, lock, init_weights)
+    return _start(folder, config, reward_fn, track, lock, init_weights, listeners)
 
 
 def create_training_in_place(name: str, config: TrainConfig, init_weights: dict | None = None) -> Trainer:
@@ -104,9 +106,9 @@ def create_training_in_place(name: str, config: TrainConfig, init_weights: dict 
 
 
 def _start(folder: ModelFolder, config: TrainConfig, reward_fn, track: Track, lock: ModelLock,
-           init_weights: dict | None) -> Trainer:
+           init_weights: dict | None, listeners: tuple = ()) -> Trainer:
     try:
-        trainer = _attach(Trainer(config, reward_fn, track), folder)
+        trainer = _attach(Trainer(config, reward_fn, track), folder, listeners)
         if init_weights is not None:
             load_weights_only(trainer.learner, init_weights)
         trainer.save_initial_checkpoint()
@@ -117,11 +119,13 @@ def _start(folder: ModelFolder, config: TrainConfig, reward_fn, track: Track, lo
     return trainer
 
 
-def _attach(trainer: Trainer, folder: ModelFolder) -> Trainer:
-    """Subscribe the model folder's recorder (it writes what the trainer reports)."""
+def _attach(trainer: Trainer, folder: ModelFolder, listeners: tuple = ()) -> Trainer:
+    """Subscribe the model folder's recorder (it writes what the trainer reports), then ``listeners``."""
     trainer.folder = folder
     trainer.subscribe(ModelFolderRecorder(folder, trainer.iteration, trainer.episodes))
     trainer.subscribe(RobomakerLogRecorder(folder, trainer.config))
+    for listener in listeners:
+        trainer.subscribe(listener)
     return trainer
 
 
@@ -134,7 +138,7 @@ def take_lock(folder, what: str = "trained") -> ModelLock:
 
 
 def resume_training(name: str, max_time_s: float | None = None, max_episodes: int | None = None,
-                    trust_reward: bool = False) -> Trainer:
+                    trust_reward: bool = False, listeners: tuple = ()) -> Trainer:
     """A Trainer that continues ``name`` from its last checkpoint (iteration count continues).
 
     ``max_time_s`` (a new budget for this session) and ``max_episodes`` (a new total) override the
@@ -159,7 +163,7 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
             state = None
         if folder.error_file.exists():
             folder.error_file.unlink()
-        trainer = _attach(Trainer(config, reward_fn, track, resume_from=state), folder)
+        trainer = _attach(Trainer(config, reward_fn, track, resume_from=state), folder, listeners)
         if state is None:
             trainer.save_initial_checkpoint()
     except BaseException:

@@ -50,7 +50,7 @@ class ProgressPrinter:
         best = f"{result.best_lap_time:.3f} s" if result.best_lap_time else "none yet"
         self.console.print(f"{self.trainer.folder.name}: {reasons.get(result.stop_reason, result.stop_reason)} after "
                            f"{result.iterations} iterations, {result.episodes} episodes, {result.env_steps} steps "
-                           f"in {_clock(result.elapsed_s)}; best lap {best}. Model: {self.trainer.folder.root}")
+                           f"in {_clock(result.elapsed_s)}; best lap {best}. Model: {getattr(self.trainer, 'location', None) or self.trainer.folder.root}")
         if result.error:
             self.console.print(f"[red]reward function error[/red] (also in {self.trainer.folder.error_file}):")
             self.console.print(result.error, markup=False)
