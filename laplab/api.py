@@ -158,8 +158,14 @@ def read_model_file(name: str, relative: str, store: str | None = None) -> bytes
     """The bytes of ``relative`` (e.g. ``metrics/TrainingMetrics.json``) in model ``name``'s folder, or
     None when it does not exist yet."""
     if store:
-        from laplab.store.remote import open_store
-        return open_store(store).read_model_file(name, relative)
+        from laplab.store.remote import RemoteModels
+        from laplab.store.s3 import ObjectMissing, ObjectStore, StoreError, parse_store_url
+        try:
+            return RemoteModels(ObjectStore(parse_store_url(store))).read(name, relative)
+        except ObjectMissing:
+            return None
+        except StoreError as exc:
+            raise UserError(str(exc)) from None
     from laplab.store.layout import model_folder
     path = model_folder(name).root / relative
     return path.read_bytes() if path.is_file() else None

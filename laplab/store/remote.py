@@ -72,6 +72,10 @@ class RemoteModels:
         return ObjectMissing(f"no model named {name!r} in the store {self.location.url()} (looked for "
                              f"{self.url(name)}{what}; models there: {shown}).")
 
+    def read(self, name: str, rel: str) -> bytes:
+        """The bytes of ``rel`` in model ``name``'s folder (ObjectMissing when it is not there)."""
+        return self.store.get_bytes(self.model_key(name, rel))
+
     def listing(self, name: str) -> dict[str, tuple[int, str]]:
         """``{path inside the model folder: (size, ETag)}`` of the model's objects."""
         base = self.model_key(name)
