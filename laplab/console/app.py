@@ -48,6 +48,7 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
+        service.hub.attach(asyncio.get_running_loop())
         async def schedule():
             while True:
                 try:

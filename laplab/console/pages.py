@@ -12,7 +12,7 @@ from fastapi import APIRouter, Depends, Form, HTTPException, Request
 from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
 from fastapi.templating import Jinja2Templates
 
-from laplab.console.auth import SESSION_COOKIE, NotLoggedIn, csrf_token, current_user, identify
+from laplab.console.auth import SESSION_COOKIE, NotLoggedIn, csrf_token, current_user, identify, require_user
 from laplab.jobs.db import User
 
 TEMPLATES = Jinja2Templates(directory=str(Path(__file__).parent / "templates"))
@@ -81,7 +81,7 @@ def models_page(request: Request):
         if "text/html" in request.headers.get("accept", ""):
             return RedirectResponse("/login", status_code=303)
         raise NotLoggedIn()
-    current_user(request)
+    require_user(request)
     return _page(request, "models.html", user, title="Models")
 
 

@@ -15,7 +15,7 @@ import sys
 import threading
 import time
 import traceback
-from dataclasses import asdict, replace
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 
 POSES_HZ = 15.0
@@ -136,9 +136,8 @@ def _train(files: JobFiles, spec: dict) -> None:
 def _evaluate(files: JobFiles, spec: dict) -> None:
     from laplab.evaluate.trials import EvaluationSettings, evaluate_model
     params = spec["params"]
-    allowed = ("track", "trials", "checkpoint", "off_track_penalty", "crash_penalty", "resets", "continuous",
-               "max_trial_time", "video")
-    settings = EvaluationSettings(**{k: params[k] for k in allowed if k in params})
+    allowed = {f.name for f in fields(EvaluationSettings)} - {"force"}
+    settings = EvaluationSettings(**{k: v for k, v in params.items() if k in allowed})
     files.event("started")
     result, stamp = evaluate_model(spec["model"], settings)
     files.finish("done", stamp=stamp, summary=result.to_dict().get("summary"))
