@@ -51,6 +51,15 @@ def percentile(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, int(round(q / 100 * (len(ordered) - 1))))] if ordered else float("nan")
 
 
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU seconds a process has used so far (Linux; None elsewhere)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def baseline(home: Path, seconds: float) -> list[float | None]:
     """Two `laplab train` processes at once, no server."""
     env = {**os.environ, "LAPLAB_HOME": str(home)}
@@ -128,6 +137,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
 
         threads = [threading.Thread(target=api_client, daemon=True) for _ in range(clients)]
         threads += [threading.Thread(target=stream_client, args=(f"served-{i % 2}",), daemon=True) for i in range(streams)]
+        cpu_start = cpu_seconds(server.pid)
         for t in threads:
             t.start()
         end = time.monotonic() + seconds + 600
@@ -137,9 +147,11 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
                 break
             time.sleep(1)
         stop.set()
+        cpu_end = cpu_seconds(server.pid)
         for t in threads:
             t.join(5)
-        return {"latencies": latencies, "deliveries": deliveries, "errors": errors[0], "statuses": statuses,
+        cpu = None if cpu_start is None or cpu_end is None else cpu_end - cpu_start
+        return {"latencies": latencies, "deliveries": deliveries, "errors": errors[0], "statuses": statuses, "cpu": cpu,
                 "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)]}
     finally:
         admin.close()
@@ -153,15 +165,19 @@ def main() -> None:
     parser.add_argument("--clients", type=int, default=50)
     parser.add_argument("--streams", type=int, default=20)
     parser.add_argument("--think", type=float, default=0.2, help="s each API client waits between requests")
+    parser.add_argument("--no-baseline", action="store_true", help="skip the trainings without the server")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="laplab-bench-") as folder:
         root = Path(folder)
-        base = baseline(root / "baseline", args.seconds)
+        base = [None, None] if args.no_baseline else baseline(root / "baseline", args.seconds)
         served = with_server(root / "served", args.seconds, args.clients, args.streams, args.think)
     lat, dl = served["latencies"], served["deliveries"]
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end")
     print(f"GET /api/models: {len(lat)} requests from {args.clients} clients (think {args.think:g} s): "
           f"p50 {1000 * percentile(lat, 50):.1f} ms, p99 {1000 * percentile(lat, 99):.1f} ms, errors {served['errors']}")
+    if served["cpu"] is not None and lat:
+        print(f"server CPU during the load: {served['cpu']:.1f} s, {1000 * served['cpu'] / len(lat):.2f} ms per "
+              f"GET /api/models answered (streams, scheduler and the other requests included)")
     print(f"iteration events over {args.streams} streams: {len(dl)} delivered, p50 {1000 * percentile(dl, 50):.0f} ms, "
           f"p99 {1000 * percentile(dl, 99):.0f} ms, max {1000 * max(dl, default=float('nan')):.0f} ms")
     fmt = lambda xs: ", ".join("-" if x is None else f"{x:.1f}" for x in xs)  # noqa: E731

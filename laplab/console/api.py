@@ -209,6 +209,8 @@ def get_model(name: str, request: Request, user: User = Depends(current_user)) -
     model = service.describe(name)
     model["iterations"] = service.catalog.iterations(name)
     model["evaluation_jobs"] = [j.to_dict() for j in service.store.jobs(model=name, kind=("evaluate",))]
+    from laplab.console.api_exports import export_view
+    model["exports"] = [export_view(j) for j in service.store.jobs(model=name, kind=("export",))]
     folder = models_dir() / name
     model["reward_function"] = (folder / "reward_function.py").read_text() if (folder / "reward_function.py").exists() else None
     config = folder / "laplab.json"

@@ -142,9 +142,14 @@ async def model_events(name: str, request: Request, user: User = Depends(current
 
 
 @router.get("/models/{name}/download")
-async def download(name: str, request: Request, format: str = Query("tar", pattern="^(tar|onnx)$"),
+async def download(name: str, request: Request, format: str = Query("tar", pattern="^(tar|onnx|car|console)$"),
                    user: User = Depends(current_user)):
+    """``tar`` (laplab's archive) and ``onnx`` are made on the spot; ``car`` and ``console`` (TensorFlow)
+    are built by export jobs (see :mod:`laplab.console.api_exports`): this serves the newest one."""
     own_model(request, name, user)
+    if format in ("car", "console"):
+        from laplab.console.api_exports import latest_export
+        return latest_export(request, name, format)
     if not (models_dir() / name / "model" / "deepracer_checkpoints.json").exists():
         raise HTTPException(409, f"{name!r} has no checkpoint to download yet")
     try:

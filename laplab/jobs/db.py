@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-JOB_KINDS = ("train", "clone", "evaluate", "resume")
+JOB_KINDS = ("train", "clone", "evaluate", "resume", "export")
 JOB_STATUSES = ("queued", "running", "stopping", "done", "failed", "interrupted")
 ACTIVE_STATUSES = ("queued", "running", "stopping")
 SESSION_LIFETIME_S = 7 * 24 * 3600.0

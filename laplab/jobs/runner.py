@@ -85,18 +85,23 @@ def owner_cache(owner: int) -> Path:
     return laplab_home() / "sandbox" / f"user-{owner}" / "cache"
 
 
+READ_ONLY_KINDS = ("export",)
+
+
 def job_mounts(job: Job) -> Mounts:
     """What the job may see (real path -> path inside the sandbox)."""
     folder = job_folder(job.id)
     target = models_dir() / job.model
     target.mkdir(parents=True, exist_ok=True)  # train/clone start in an empty, pre-made folder
-    writable = {str(folder): f"{SANDBOX_HOME}/job", str(target.resolve()): f"{SANDBOX_HOME}/models/{job.model}"}
+    writable = {str(folder): f"{SANDBOX_HOME}/job"}
+    readonly = {}
+    model_view = readonly if job.kind in READ_ONLY_KINDS else writable  # an export only reads its model
+    model_view[str(target.resolve())] = f"{SANDBOX_HOME}/models/{job.model}"
     cache = owner_cache(job.owner)
     cache.mkdir(parents=True, exist_ok=True)
     from laplab.jobs.warmup import seed
     seed(cache / "numba", laplab_home())
     writable[str(cache)] = f"{SANDBOX_HOME}/cache"
-    readonly = {}
     source = job.params.get("source")
     if source:
         readonly[str((models_dir() / source).resolve())] = f"{SANDBOX_HOME}/models/{source}"

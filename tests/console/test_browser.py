@@ -5,7 +5,9 @@ kept under the test's output folder (``tmp_path``)."""
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
+import tarfile
 
 import pytest
 
@@ -89,14 +91,35 @@ def test_console_in_chromium(console, page, tmp_path):
     download.value.save_as(target)
     assert target.read_bytes()[:2] == b"\x1f\x8b"
 
+    if importlib.util.find_spec("tensorflow") is not None:  # Download for the car: an export job
+        page.click("#export-car")
+        page.wait_for_selector("[data-export][data-status='done'] a", timeout=300_000)
+        shot(page, tmp_path, "06-model-car-download")
+        with page.expect_download(timeout=60_000) as download:
+            page.click("[data-export][data-status='done'] a")
+        car = tmp_path / "browser-model-car.tar.gz"
+        download.value.save_as(car)
+        with tarfile.open(car) as archive:
+            assert sorted(archive.getnames()) == ["agent/model.pb", "model_metadata.json"]
+
+    with page.expect_popup() as popup:  # the Report button opens the model's HTML report
+        page.click("#report")
+    report = popup.value
+    report.wait_for_selector("figure img", timeout=120_000)
+    report.wait_for_function("Array.from(document.images).every(i => i.complete)")
+    assert report.evaluate("Array.from(document.images).every(i => i.naturalWidth > 0)")  # figures, not broken links
+    assert report.locator("figure img").count() >= 3
+    shot(report, tmp_path, "07-report")
+    report.close()
+
     page.click("text=Leaderboard")
     page.wait_for_selector("[data-board='oval'] tbody tr")
     assert "browser-model" in page.inner_text("[data-board='oval']")
-    shot(page, tmp_path, "06-leaderboard")
+    shot(page, tmp_path, "08-leaderboard")
 
     page.click("text=Your models")
     page.wait_for_selector("tr[data-model='browser-model']")
-    shot(page, tmp_path, "07-models")
+    shot(page, tmp_path, "09-models")
     page.on("dialog", lambda dialog: dialog.accept())
     page.click("[data-delete='browser-model']")
     page.wait_for_selector("tr[data-model='browser-model']", state="detached")
