@@ -8,7 +8,8 @@ steps per second against the same two trainings run by ``laplab train`` without 
 Everything runs on this machine (server, jobs and clients share its cores), on 127.0.0.1, with a
 fresh temporary ``$LAPLAB_HOME``, bounded by ``--seconds`` per phase.
 
-Usage: python bench/console_load.py [--seconds 90] [--clients 50] [--streams 20] [--think 0.2]
+Usage: python bench/console_load.py [--seconds 90] [--clients 50] [--streams 20] [--think 0.2] [--no-baseline]
+       python bench/console_load.py --cpu-per-request --seconds 20 --clients 20 --streams 20
 """
 
 from __future__ import annotations
@@ -159,6 +160,73 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
         server.wait(60)
 
 
+def cpu_per_request(home: Path, seconds: float, clients: int, streams: int) -> None:
+    """The server's CPU time per ``GET /api/models`` with one idle model, ``streams`` open event
+    streams on it and ``clients`` threads asking with no think time (no trainings: the figure the
+    machine's other load disturbs least)."""
+    from dataclasses import replace
+    os.environ["LAPLAB_HOME"] = str(home)
+    from laplab.jobs.warmup import READY_MARKER, trusted_cache
+    from laplab.train.config import TrainConfig
+    from laplab.train.jobs import create_training
+    create_training("idle", replace(TrainConfig(), max_time_s=5.0))
+    trusted_cache(home).mkdir(parents=True)
+    (trusted_cache(home) / READY_MARKER).write_text("no jobs run here\n")  # no warm-up in the server
+    port = free_port()
+    server = subprocess.Popen([sys.executable, "-m", "laplab.cli", "serve", "--port", str(port)],
+                              env={**os.environ, "LAPLAB_ADMIN_TOKEN": TOKEN}, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
+    url, headers = f"http://127.0.0.1:{port}", {"Authorization": f"Bearer {TOKEN}"}
+    stop, latencies = threading.Event(), []
+    try:
+        with httpx.Client(base_url=url, headers=headers) as admin:
+            deadline = time.monotonic() + 60
+            while True:
+                try:
+                    if admin.get("/api/models").status_code == 200:
+                        break
+                except httpx.TransportError:
+                    pass
+                if time.monotonic() > deadline:
+                    raise SystemExit("the server did not start")
+                time.sleep(0.2)
+
+        def stream_client():
+            with httpx.Client(base_url=url, headers=headers, timeout=httpx.Timeout(30, read=None)) as client:
+                with client.stream("GET", "/api/models/idle/events") as response:
+                    for _ in response.iter_lines():
+                        if stop.is_set():
+                            return
+
+        def api_client():
+            with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
+                while not stop.is_set():
+                    t0 = time.perf_counter()
+                    if client.get("/api/models").status_code == 200:
+                        latencies.append(time.perf_counter() - t0)
+
+        for _ in range(streams):
+            threading.Thread(target=stream_client, daemon=True).start()
+        time.sleep(2)
+        idle_start = cpu_seconds(server.pid)
+        time.sleep(5)
+        idle = (cpu_seconds(server.pid) - idle_start) / 5
+        cpu_start = cpu_seconds(server.pid)
+        for _ in range(clients):
+            threading.Thread(target=api_client, daemon=True).start()
+        time.sleep(seconds)
+        stop.set()
+        cpu = cpu_seconds(server.pid) - cpu_start
+    finally:
+        server.terminate()
+        server.wait(60)
+    n = len(latencies)
+    print(f"idle server with {streams} open streams: {1000 * idle:.0f} ms of CPU per second")
+    print(f"{n} GET /api/models from {clients} clients in {seconds:g} s ({n / seconds:.0f}/s): server CPU "
+          f"{1000 * cpu / max(n, 1):.2f} ms per request; p50 {1000 * percentile(latencies, 50):.1f} ms, "
+          f"p99 {1000 * percentile(latencies, 99):.1f} ms; load average {os.getloadavg()[0]:.1f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seconds", type=float, default=90.0, help="training time of each phase (default 90)")
@@ -166,7 +234,14 @@ def main() -> None:
     parser.add_argument("--streams", type=int, default=20)
     parser.add_argument("--think", type=float, default=0.2, help="s each API client waits between requests")
     parser.add_argument("--no-baseline", action="store_true", help="skip the trainings without the server")
+    parser.add_argument("--cpu-per-request", action="store_true",
+                        help="only the server's CPU per request: an idle model, --streams streams, --clients clients "
+                             "with no think time for --seconds")
     args = parser.parse_args()
+    if args.cpu_per_request:
+        with tempfile.TemporaryDirectory(prefix="laplab-bench-") as folder:
+            cpu_per_request(Path(folder), args.seconds, args.clients, args.streams)
+        return
     with tempfile.TemporaryDirectory(prefix="laplab-bench-") as folder:
         root = Path(folder)
         base = [None, None] if args.no_baseline else baseline(root / "baseline", args.seconds)
