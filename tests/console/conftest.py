@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import socket
+from pathlib import Path
 import threading
 import time
 from contextlib import contextmanager
@@ -71,7 +72,7 @@ def _source_stamp() -> str:
     return digest.hexdigest()[:16]
 
 
-def numba_seed(base) -> "Path":
+def numba_seed(base) -> Path:
     """A trusted numba cache for the consoles of the tests, made by laplab's own warm-up (as
     ``laplab serve`` makes one per home) once per source version (kept in pytest's cache folder):
     each new user's jobs start from a copy instead of compiling every kernel (tens of seconds per
