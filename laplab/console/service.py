@@ -199,18 +199,14 @@ class ConsoleService:
         user = self.store.user_by_id(user_id) if user_id is not None else None
         return user.name if user else None
 
-    def visible_models(self, user: User) -> list[dict]:
-        """The models ``user`` sees, newest first."""
-        return json.loads(self.visible_models_json(user))
-
     def cached_models_json(self, user: User) -> bytes | None:
-        """The JSON of :meth:`visible_models` when a fresh one (at most ``LIST_TTL_S`` old) is at hand:
+        """The JSON of :meth:`visible_models_json` when a fresh one (at most ``LIST_TTL_S`` old) is at hand:
         many pages and scripts polling at once cost one computation per interval, not one each."""
         hit = self._list_cache.get(user.id)
         return hit[1] if hit is not None and time.monotonic() - hit[0] < LIST_TTL_S else None
 
     def visible_models_json(self, user: User) -> bytes:
-        """:meth:`visible_models` as JSON bytes (computed at most once per ``LIST_TTL_S``; blocking)."""
+        """The models ``user`` sees, newest first, as JSON (computed at most once per ``LIST_TTL_S``; blocking)."""
         cached = self.cached_models_json(user)
         if cached is not None:
             return cached
