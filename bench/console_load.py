@@ -8,7 +8,8 @@ steps per second against the same two trainings run by ``laplab train`` without 
 Everything runs on this machine (server, jobs and clients share its cores), on 127.0.0.1, with a
 fresh temporary ``$LAPLAB_HOME``, bounded by ``--seconds`` per phase.
 
-Usage: python bench/console_load.py [--seconds 90] [--clients 50] [--streams 20] [--think 0.2]
+Usage: python bench/console_load.py [--seconds 90] [--clients 50] [--streams 20] [--think 0.2] [--no-baseline]
+       python bench/console_load.py --cpu-per-request --seconds 20 --clients 20 --streams 20
 """
 
 from __future__ import annotations
@@ -49,6 +50,15 @@ def steps_per_second(model_dir: Path) -> float | None:
 def percentile(values: list[float], q: float) -> float:
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, int(round(q / 100 * (len(ordered) - 1))))] if ordered else float("nan")
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU seconds a process has used so far (Linux; None elsewhere)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def baseline(home: Path, seconds: float) -> list[float | None]:
@@ -128,6 +138,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
 
         threads = [threading.Thread(target=api_client, daemon=True) for _ in range(clients)]
         threads += [threading.Thread(target=stream_client, args=(f"served-{i % 2}",), daemon=True) for i in range(streams)]
+        cpu_start = cpu_seconds(server.pid)
         for t in threads:
             t.start()
         end = time.monotonic() + seconds + 600
@@ -137,14 +148,83 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
                 break
             time.sleep(1)
         stop.set()
+        cpu_end = cpu_seconds(server.pid)
         for t in threads:
             t.join(5)
-        return {"latencies": latencies, "deliveries": deliveries, "errors": errors[0], "statuses": statuses,
+        cpu = None if cpu_start is None or cpu_end is None else cpu_end - cpu_start
+        return {"latencies": latencies, "deliveries": deliveries, "errors": errors[0], "statuses": statuses, "cpu": cpu,
                 "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)]}
     finally:
         admin.close()
         server.terminate()
         server.wait(60)
+
+
+def cpu_per_request(home: Path, seconds: float, clients: int, streams: int) -> None:
+    """The server's CPU time per ``GET /api/models`` with one idle model, ``streams`` open event
+    streams on it and ``clients`` threads asking with no think time (no trainings: the figure the
+    machine's other load disturbs least)."""
+    from dataclasses import replace
+    os.environ["LAPLAB_HOME"] = str(home)
+    from laplab.jobs.warmup import READY_MARKER, trusted_cache
+    from laplab.train.config import TrainConfig
+    from laplab.train.jobs import create_training
+    create_training("idle", replace(TrainConfig(), max_time_s=5.0))
+    trusted_cache(home).mkdir(parents=True)
+    (trusted_cache(home) / READY_MARKER).write_text("no jobs run here\n")  # no warm-up in the server
+    port = free_port()
+    server = subprocess.Popen([sys.executable, "-m", "laplab.cli", "serve", "--port", str(port)],
+                              env={**os.environ, "LAPLAB_ADMIN_TOKEN": TOKEN}, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
+    url, headers = f"http://127.0.0.1:{port}", {"Authorization": f"Bearer {TOKEN}"}
+    stop, latencies = threading.Event(), []
+    try:
+        with httpx.Client(base_url=url, headers=headers) as admin:
+            deadline = time.monotonic() + 60
+            while True:
+                try:
+                    if admin.get("/api/models").status_code == 200:
+                        break
+                except httpx.TransportError:
+                    pass
+                if time.monotonic() > deadline:
+                    raise SystemExit("the server did not start")
+                time.sleep(0.2)
+
+        def stream_client():
+            with httpx.Client(base_url=url, headers=headers, timeout=httpx.Timeout(30, read=None)) as client:
+                with client.stream("GET", "/api/models/idle/events") as response:
+                    for _ in response.iter_lines():
+                        if stop.is_set():
+                            return
+
+        def api_client():
+            with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
+                while not stop.is_set():
+                    t0 = time.perf_counter()
+                    if client.get("/api/models").status_code == 200:
+                        latencies.append(time.perf_counter() - t0)
+
+        for _ in range(streams):
+            threading.Thread(target=stream_client, daemon=True).start()
+        time.sleep(2)
+        idle_start = cpu_seconds(server.pid)
+        time.sleep(5)
+        idle = (cpu_seconds(server.pid) - idle_start) / 5
+        cpu_start = cpu_seconds(server.pid)
+        for _ in range(clients):
+            threading.Thread(target=api_client, daemon=True).start()
+        time.sleep(seconds)
+        stop.set()
+        cpu = cpu_seconds(server.pid) - cpu_start
+    finally:
+        server.terminate()
+        server.wait(60)
+    n = len(latencies)
+    print(f"idle server with {streams} open streams: {1000 * idle:.0f} ms of CPU per second")
+    print(f"{n} GET /api/models from {clients} clients in {seconds:g} s ({n / seconds:.0f}/s): server CPU "
+          f"{1000 * cpu / max(n, 1):.2f} ms per request; p50 {1000 * percentile(latencies, 50):.1f} ms, "
+          f"p99 {1000 * percentile(latencies, 99):.1f} ms; load average {os.getloadavg()[0]:.1f}")
 
 
 def main() -> None:
@@ -153,15 +233,26 @@ def main() -> None:
     parser.add_argument("--clients", type=int, default=50)
     parser.add_argument("--streams", type=int, default=20)
     parser.add_argument("--think", type=float, default=0.2, help="s each API client waits between requests")
+    parser.add_argument("--no-baseline", action="store_true", help="skip the trainings without the server")
+    parser.add_argument("--cpu-per-request", action="store_true",
+                        help="only the server's CPU per request: an idle model, --streams streams, --clients clients "
+                             "with no think time for --seconds")
     args = parser.parse_args()
+    if args.cpu_per_request:
+        with tempfile.TemporaryDirectory(prefix="laplab-bench-") as folder:
+            cpu_per_request(Path(folder), args.seconds, args.clients, args.streams)
+        return
     with tempfile.TemporaryDirectory(prefix="laplab-bench-") as folder:
         root = Path(folder)
-        base = baseline(root / "baseline", args.seconds)
+        base = [None, None] if args.no_baseline else baseline(root / "baseline", args.seconds)
         served = with_server(root / "served", args.seconds, args.clients, args.streams, args.think)
     lat, dl = served["latencies"], served["deliveries"]
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end")
     print(f"GET /api/models: {len(lat)} requests from {args.clients} clients (think {args.think:g} s): "
           f"p50 {1000 * percentile(lat, 50):.1f} ms, p99 {1000 * percentile(lat, 99):.1f} ms, errors {served['errors']}")
+    if served["cpu"] is not None and lat:
+        print(f"server CPU during the load: {served['cpu']:.1f} s, {1000 * served['cpu'] / len(lat):.2f} ms per "
+              f"GET /api/models answered (streams, scheduler and the other requests included)")
     print(f"iteration events over {args.streams} streams: {len(dl)} delivered, p50 {1000 * percentile(dl, 50):.0f} ms, "
           f"p99 {1000 * percentile(dl, 99):.0f} ms, max {1000 * max(dl, default=float('nan')):.0f} ms")
     fmt = lambda xs: ", ".join("-" if x is None else f"{x:.1f}" for x in xs)  # noqa: E731

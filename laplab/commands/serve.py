@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
+import math
 
 
 def register(subparsers) -> None:
@@ -15,6 +16,9 @@ def register(subparsers) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
     parser.add_argument("--port", type=int, default=8080, help="port (default 8080)")
     parser.add_argument("--workers", type=int, default=None, help="jobs run at once (default: one per two cores)")
+    parser.add_argument("--job-wall-margin", type=float, default=600.0, metavar="SECONDS",
+                        help="wall-clock seconds a job may run past its own budget (a training's max time, an "
+                             "evaluation's trials x max trial time) before the server ends it (default 600)")
     parser.add_argument("--no-accounts", action="store_true",
                         help="everyone is the admin, no login (only with a loopback --host)")
     parser.set_defaults(func=run)
@@ -44,7 +48,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--workers must be >= 1, got {args.workers}")
     if not 0 < args.port < 65536:
         raise UserError(f"--port must be within 1..65535, got {args.port}")
-    app = create_app(args.workers, open_access=args.no_accounts)
+    if not (args.job_wall_margin > 0 and math.isfinite(args.job_wall_margin)):
+        raise UserError(f"--job-wall-margin must be a positive number of seconds, got {args.job_wall_margin}")
+    from laplab.jobs.confinement import JobLimits
+    app = create_app(args.workers, open_access=args.no_accounts, limits=JobLimits(wall_margin_s=args.job_wall_margin))
     store, service = app.state.store, app.state.service
     admin = store.admin()
     token = app.state.first_token

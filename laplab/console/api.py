@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any
+from dataclasses import fields
+from typing import Any, get_type_hints
 
-from fastapi import APIRouter, Depends, HTTPException, Request
+from fastapi import APIRouter, Depends, HTTPException, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, ConfigDict, Field
+from pydantic import create_model as pydantic_model
 
 from laplab.console.auth import current_user
+from laplab.evaluate.trials import EvaluationSettings
 from laplab.jobs.db import StoreError, User
 from laplab.jobs.runner import models_dir
 
@@ -45,17 +48,20 @@ class Resume(BaseModel):
     max_time_s: float | None = None
 
 
-class Evaluate(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    track: str | None = None
-    trials: int = 3
-    checkpoint: str = "best"
-    off_track_penalty: float = 2.0
-    crash_penalty: float = 5.0
-    resets: int | None = None
-    continuous: bool = False
-    max_trial_time: float = 600.0
-    video: bool = False
+# What the console lets a user set of an evaluation: every EvaluationSettings field but ``force``
+# (the console keeps DeepRacer's 1..5 trials). The request model is derived from the dataclass, so
+# the two cannot drift; the dataclass's own checks give the error messages.
+EVALUATION_FIELDS = tuple(f.name for f in fields(EvaluationSettings) if f.name != "force")
+
+
+def _evaluate_model() -> type[BaseModel]:
+    hints = get_type_hints(EvaluationSettings)
+    defaults = {f.name: f.default for f in fields(EvaluationSettings)}
+    return pydantic_model("Evaluate", __config__=ConfigDict(extra="forbid"), __doc__=EvaluationSettings.__doc__,
+                        **{name: (hints[name], defaults[name]) for name in EVALUATION_FIELDS})
+
+
+Evaluate = _evaluate_model()
 
 
 class ValidateReward(BaseModel):
@@ -157,9 +163,15 @@ def me(user: User = Depends(current_user)) -> dict:
     return {"name": user.name, "admin": user.is_admin}
 
 
-@router.get("/models")
-def list_models_route(request: Request, user: User = Depends(current_user)) -> list[dict]:
-    return _service(request).visible_models(user)
+@router.get("/models", response_model=list[dict])
+async def list_models_route(request: Request, user: User = Depends(current_user)) -> Response:
+    """Your models (all of them for the admin), newest first; served from a list at most
+    ``LIST_TTL_S`` old, rebuilt in a worker thread (file stats and a few SQLite reads)."""
+    service = _service(request)
+    body = service.cached_models_json(user)
+    if body is None:
+        body = await run_in_threadpool(service.visible_models_json, user)
+    return Response(body, media_type="application/json")
 
 
 async def _validate_and_claim(request: Request, user: User, body: CloneModel, reward_source: str | None,
@@ -197,6 +209,8 @@ def get_model(name: str, request: Request, user: User = Depends(current_user)) -
     model = service.describe(name)
     model["iterations"] = service.catalog.iterations(name)
     model["evaluation_jobs"] = [j.to_dict() for j in service.store.jobs(model=name, kind=("evaluate",))]
+    from laplab.console.api_exports import export_view
+    model["exports"] = [export_view(j) for j in service.store.jobs(model=name, kind=("export",))]
     folder = models_dir() / name
     model["reward_function"] = (folder / "reward_function.py").read_text() if (folder / "reward_function.py").exists() else None
     config = folder / "laplab.json"

@@ -4,7 +4,6 @@ validation, the leaderboard and tracks (see :mod:`laplab.console.api` for the co
 from __future__ import annotations
 
 import asyncio
-import json
 import shutil
 import time
 
@@ -17,11 +16,13 @@ from laplab.console import exports
 from laplab.console.api import (Evaluate, ValidateReward, _field_of, _input_errors, _service, _validate_reward,
                                 bad_request, check_track_name, own_model)
 from laplab.console.auth import current_user
+from laplab.console.service import sse_message
 from laplab.jobs.db import User
 from laplab.jobs.runner import job_folder, models_dir
 
 router = APIRouter(prefix="/api")
-POSES_INTERVAL_S = 1.0 / 15.0
+DISCONNECT_CHECK_S = 1.0  # how often a quiet stream checks that its client is still there
+KEEP_ALIVE_S = 15.0
 
 
 @router.post("/models/{name}/evaluations", status_code=202)
@@ -93,11 +94,6 @@ def evaluation_video(name: str, stamp: str, request: Request, user: User = Depen
     return FileResponse(videos[0])
 
 
-def _sse(kind: str, data: dict, event_id: int | None = None) -> str:
-    head = f"id: {event_id}\n" if event_id is not None else ""
-    return f"{head}event: {kind}\ndata: {json.dumps(data)}\n\n"
-
-
 @router.get("/models/{name}/events")
 async def model_events(name: str, request: Request, user: User = Depends(current_user)) -> StreamingResponse:
     """Server-sent events: ``status`` on each status change, ``iteration`` per training iteration,
@@ -107,37 +103,53 @@ async def model_events(name: str, request: Request, user: User = Depends(current
     stream = service.hub.stream(name)
 
     async def generate():
-        seen, poses_seen = stream.seq, stream.poses_seq
-        model = service.describe(name)
-        yield _sse("status", {"status": model["status"], "progress": model["progress"]})
-        last_check = last_sent = time.monotonic()
-        while True:
-            if stream.seq > seen:
-                for seq, kind, data in list(stream.events):
-                    if seq > seen:
-                        yield _sse(kind, data, seq)
-                seen = stream.seq
-            if stream.poses_seq > poses_seen and stream.poses is not None:
-                poses_seen = stream.poses_seq
-                yield _sse("poses", stream.poses)
-            now = time.monotonic()
-            if now - last_check > 1.0:
-                last_check = now
-                if await request.is_disconnected():
-                    return
-                if now - last_sent > 15.0:
-                    last_sent = now
-                    yield ": keep-alive\n\n"
-            await asyncio.sleep(POSES_INTERVAL_S / 2)
+        wake = asyncio.Event()
+        stream.waiters.add(wake)
+        try:
+            seen, poses_seen = stream.seq, stream.poses_seq
+            model = await run_in_threadpool(service.describe, name)
+            yield sse_message("status", {"status": model["status"], "progress": model["progress"]})
+            last_sent = last_check = time.monotonic()
+            while True:
+                wake.clear()  # before reading: news published from here on sets it again
+                if stream.seq > seen:
+                    for seq, _, _, text in list(stream.events):
+                        if seq > seen:
+                            yield text
+                    seen = stream.seq
+                    last_sent = time.monotonic()
+                if stream.poses_seq > poses_seen and stream.poses is not None:
+                    poses_seen = stream.poses_seq
+                    yield stream.poses_text
+                    last_sent = time.monotonic()
+                try:
+                    await asyncio.wait_for(wake.wait(), DISCONNECT_CHECK_S)
+                except asyncio.TimeoutError:
+                    pass
+                now = time.monotonic()
+                if now - last_check >= DISCONNECT_CHECK_S:
+                    last_check = now
+                    if await request.is_disconnected():
+                        return
+                    if now - last_sent > KEEP_ALIVE_S:
+                        last_sent = now
+                        yield ": keep-alive\n\n"
+        finally:
+            stream.waiters.discard(wake)
 
     return StreamingResponse(generate(), media_type="text/event-stream",
                              headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
 
 
 @router.get("/models/{name}/download")
-async def download(name: str, request: Request, format: str = Query("tar", pattern="^(tar|onnx)$"),
+async def download(name: str, request: Request, format: str = Query("tar", pattern="^(tar|onnx|car|console)$"),
                    user: User = Depends(current_user)):
+    """``tar`` (laplab's archive) and ``onnx`` are made on the spot; ``car`` and ``console`` (TensorFlow)
+    are built by export jobs (see :mod:`laplab.console.api_exports`): this serves the newest one."""
     own_model(request, name, user)
+    if format in ("car", "console"):
+        from laplab.console.api_exports import latest_export
+        return latest_export(request, name, format)
     if not (models_dir() / name / "model" / "deepracer_checkpoints.json").exists():
         raise HTTPException(409, f"{name!r} has no checkpoint to download yet")
     try:

@@ -35,7 +35,7 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
                limits: JobLimits = JobLimits(), tick_s: float | None = None, warm_cache: bool = True) -> FastAPI:
     """The console app over ``$LAPLAB_HOME`` (database, secret key, model folders); ``warm_cache``
     compiles numba's kernels once in the background for new users' jobs (:mod:`laplab.jobs.warmup`)."""
-    from laplab.console import api, api_results, pages
+    from laplab.console import api, api_exports, api_results, pages
     from laplab.console.service import TICK_S
 
     home = laplab_home()
@@ -48,6 +48,7 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
+        service.hub.attach(asyncio.get_running_loop())
         async def schedule():
             while True:
                 try:
@@ -92,5 +93,6 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
 
     app.include_router(api.router)
     app.include_router(api_results.router)
+    app.include_router(api_exports.router)
     app.include_router(pages.router)
     return app

@@ -62,9 +62,37 @@ def identify(request: Request) -> tuple[User | None, str | None]:
     return None, None
 
 
-def current_user(request: Request) -> User:
-    """The dependency of every protected route: 401 without credentials, 403 on a bad CSRF token."""
-    user, session = identify(request)
+def _identify_from_memory(request: Request) -> tuple[User | None, str | None] | None:
+    """:func:`identify` when the store can answer from memory (a token or session seen before), else None."""
+    store = request.app.state.store
+    header = request.headers.get("authorization", "")
+    if header.lower().startswith("bearer "):
+        user = store.cached_user(token=header[7:].strip())
+        return None if user is None else (user, None)
+    session = request.cookies.get(SESSION_COOKIE)
+    if session:
+        user = store.cached_user(session=session)
+        return None if user is None else (user, session)
+    return None
+
+
+async def current_user(request: Request) -> User:
+    """The dependency of every protected route: 401 without credentials, 403 on a bad CSRF token.
+    Async: a known token or session is checked in the event loop without a thread hop; an unknown
+    one (argon2, a database read) is checked in a worker thread."""
+    known = _identify_from_memory(request)
+    if known is None:
+        from fastapi.concurrency import run_in_threadpool
+        known = await run_in_threadpool(identify, request)
+    return _admit(request, *known)
+
+
+def require_user(request: Request) -> User:
+    """:func:`current_user` for synchronous callers."""
+    return _admit(request, *identify(request))
+
+
+def _admit(request: Request, user: User | None, session: str | None) -> User:
     if user is None:
         raise NotLoggedIn()
     if session is not None and request.method not in SAFE_METHODS:

@@ -12,7 +12,7 @@ from fastapi import APIRouter, Depends, Form, HTTPException, Request
 from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
 from fastapi.templating import Jinja2Templates
 
-from laplab.console.auth import SESSION_COOKIE, NotLoggedIn, csrf_token, current_user, identify
+from laplab.console.auth import SESSION_COOKIE, NotLoggedIn, csrf_token, current_user, identify, require_user
 from laplab.jobs.db import User
 
 TEMPLATES = Jinja2Templates(directory=str(Path(__file__).parent / "templates"))
@@ -81,7 +81,7 @@ def models_page(request: Request):
         if "text/html" in request.headers.get("accept", ""):
             return RedirectResponse("/login", status_code=303)
         raise NotLoggedIn()
-    current_user(request)
+    require_user(request)
     return _page(request, "models.html", user, title="Models")
 
 
@@ -108,8 +108,17 @@ def model_page(name: str, request: Request, user: User = Depends(current_user)):
 
 
 @router.get("/models/{name}/report", response_class=HTMLResponse)
+def report_redirect(name: str, request: Request, user: User = Depends(current_user)):
+    """The report lives at ``.../report/`` so that its figures (files beside the page) resolve."""
+    if not request.app.state.service.can_see(user, name):
+        raise HTTPException(404, f"no model named {name!r} among your models")
+    return RedirectResponse(f"/models/{name}/report/", status_code=307)
+
+
+@router.get("/models/{name}/report/", response_class=HTMLResponse)
 def report_page(name: str, request: Request, user: User = Depends(current_user)):
-    """The model's HTML report (``laplab report``), built in a child process."""
+    """The model's HTML report (``laplab report``), built in a child process; its figures are
+    served by :func:`report_file`."""
     if not request.app.state.service.can_see(user, name):
         raise HTTPException(404, f"no model named {name!r} among your models")
     from laplab.console.exports import ExportError, _laplab
@@ -121,7 +130,20 @@ def report_page(name: str, request: Request, user: User = Depends(current_user))
     page = Path(output.strip().splitlines()[-1])
     if not page.is_file():
         raise HTTPException(500, "laplab report wrote no page")
-    return HTMLResponse(page.read_text(encoding="utf-8"))
+    return HTMLResponse(page.read_text(encoding="utf-8"), headers={"Cache-Control": "no-store"})
+
+
+@router.get("/models/{name}/report/{file}")
+def report_file(name: str, file: str, request: Request, user: User = Depends(current_user)):
+    """A figure (PNG), video or data file of the model's last built report."""
+    if not request.app.state.service.can_see(user, name):
+        raise HTTPException(404, f"no model named {name!r} among your models")
+    from laplab.jobs.runner import models_dir
+    folder = (models_dir() / name / "report").resolve()
+    target = (folder / file).resolve()
+    if target.parent != folder or not target.is_file():
+        raise HTTPException(404, f"the report of {name!r} has no file {file!r}")
+    return FileResponse(target, headers={"Cache-Control": "no-store"})
 
 
 @router.get("/leaderboard", response_class=HTMLResponse)

@@ -8,9 +8,11 @@ job of its model runs.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import shutil
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -24,6 +26,7 @@ from laplab.store.layout import ModelFolder, list_models
 
 TICK_S = 1.0 / 30.0
 LIST_TTL_S = 0.25
+QUEUE_CHECK_S = 1.0  # the scheduler reads the queue at least this often while a worker is free
 TRAIN_KINDS = ("train", "clone", "resume")
 MODEL_STATUS = {"queued": "queued", "running": "training", "stopping": "stopping", "done": "ready",
                 "failed": "failed", "interrupted": "interrupted"}
@@ -33,17 +36,25 @@ MODEL_STATUS = {"queued": "queued", "running": "training", "stopping": "stopping
 class ModelStream:
     """Live state of one model for its event streams."""
 
-    events: deque = field(default_factory=lambda: deque(maxlen=2000))  # (seq, kind, data)
+    events: deque = field(default_factory=lambda: deque(maxlen=2000))  # (seq, kind, data, SSE text)
     seq: int = 0
     poses: dict | None = None
+    poses_text: str = ""  # the poses as an SSE message, written once for every stream
     poses_seq: int = 0
+    waiters: set = field(default_factory=set)  # asyncio.Event of each open stream, set on news
 
 
 class EventHub:
-    """Per-model events (iterations, status changes) and the latest poses, numbered for streams."""
+    """Per-model events (iterations, status changes) and the latest poses, numbered for streams.
+    An open stream waits on its own ``asyncio.Event``, set when its model has news (no polling)."""
 
     def __init__(self):
         self.streams: dict[str, ModelStream] = {}
+        self.loop: asyncio.AbstractEventLoop | None = None  # the server's loop (set at start-up)
+        self._loop_thread: int | None = None
+
+    def attach(self, loop: asyncio.AbstractEventLoop) -> None:
+        self.loop, self._loop_thread = loop, threading.get_ident()
 
     def stream(self, model: str) -> ModelStream:
         return self.streams.setdefault(model, ModelStream())
@@ -51,11 +62,27 @@ class EventHub:
     def publish(self, model: str, kind: str, data: dict) -> None:
         stream = self.stream(model)
         stream.seq += 1
-        stream.events.append((stream.seq, kind, data))
+        stream.events.append((stream.seq, kind, data, sse_message(kind, data, stream.seq)))
+        self._wake(stream)
 
     def set_poses(self, model: str, poses: dict) -> None:
         stream = self.stream(model)
-        stream.poses, stream.poses_seq = poses, stream.poses_seq + 1
+        stream.poses, stream.poses_text = poses, sse_message("poses", poses)
+        stream.poses_seq += 1
+        self._wake(stream)
+
+    def _wake(self, stream: ModelStream) -> None:
+        for waiter in list(stream.waiters):
+            if self.loop is None or threading.get_ident() == self._loop_thread:
+                waiter.set()
+            else:  # published from a worker thread (a route running in the thread pool)
+                self.loop.call_soon_threadsafe(waiter.set)
+
+
+def sse_message(kind: str, data: dict, event_id: int | None = None) -> str:
+    """One server-sent event: ``event: KIND`` and ``data: JSON`` (with ``id:`` when numbered)."""
+    head = f"id: {event_id}\n" if event_id is not None else ""
+    return f"{head}event: {kind}\ndata: {json.dumps(data)}\n\n"
 
 
 def _iso(timestamp: float | None) -> str | None:
@@ -126,7 +153,8 @@ class ConsoleService:
         self._event_offsets: dict[int, int] = {}
         self._poses_mtime: dict[int, int] = {}
         self.interrupted_at_start = store.interrupt_running()
-        self._list_cache: dict[int, tuple[float, list[dict]]] = {}
+        self._list_cache: dict[int, tuple[float, bytes]] = {}
+        self._queue_changed, self._queue_checked = True, 0.0  # the queue is read when it may have changed
 
     # -- models ------------------------------------------------------------------------------------
 
@@ -171,16 +199,21 @@ class ConsoleService:
         user = self.store.user_by_id(user_id) if user_id is not None else None
         return user.name if user else None
 
-    def visible_models(self, user: User) -> list[dict]:
-        """The models ``user`` sees, newest first (a list at most ``LIST_TTL_S`` old: many pages and
-        scripts polling at once cost one computation per interval, not one each)."""
-        now = time.monotonic()
+    def cached_models_json(self, user: User) -> bytes | None:
+        """The JSON of :meth:`visible_models_json` when a fresh one (at most ``LIST_TTL_S`` old) is at hand:
+        many pages and scripts polling at once cost one computation per interval, not one each."""
         hit = self._list_cache.get(user.id)
-        if hit is not None and now - hit[0] < LIST_TTL_S:
-            return hit[1]
-        models = self._visible_models(user)
-        self._list_cache[user.id] = (now, models)
-        return models
+        return hit[1] if hit is not None and time.monotonic() - hit[0] < LIST_TTL_S else None
+
+    def visible_models_json(self, user: User) -> bytes:
+        """The models ``user`` sees, newest first, as JSON (computed at most once per ``LIST_TTL_S``; blocking)."""
+        cached = self.cached_models_json(user)
+        if cached is not None:
+            return cached
+        now = time.monotonic()
+        body = json.dumps(self._visible_models(user), separators=(",", ":")).encode()
+        self._list_cache[user.id] = (now, body)
+        return body
 
     def models_changed(self) -> None:
         """Drop the cached model lists (a model was added or removed outside a job)."""
@@ -213,6 +246,7 @@ class ConsoleService:
     def submit(self, kind: str, model: str, owner: int, params: dict, reward_source: str | None = None) -> Job:
         job = self.store.add_job(kind, model, owner, params)
         self._list_cache.clear()
+        self._queue_changed = True
         folder = job_folder(job.id)
         folder.mkdir(parents=True, exist_ok=True)
         if reward_source is not None:
@@ -237,12 +271,16 @@ class ConsoleService:
     def tick(self) -> None:
         """One scheduler step (cheap: a few stats and small reads)."""
         for finished in self.runner.poll():
-            self._finish(finished.job_id, finished.returncode)
-        for job in self.store.jobs(status=("running", "stopping")):
-            self._tail(job)
+            self._finish(finished.job_id, finished.returncode, finished.error)
         running = self.store.jobs(status=("running", "stopping"))
-        busy_models = {j.model for j in running}
+        for job in running:
+            self._tail(job)
         free = self.workers - len(running)
+        now = time.monotonic()
+        if free <= 0 or (not self._queue_changed and now - self._queue_checked < QUEUE_CHECK_S):
+            return
+        self._queue_changed, self._queue_checked = False, now
+        busy_models = {j.model for j in running}
         for job in self.store.jobs(status=("queued",)):
             if free <= 0:
                 break
@@ -301,7 +339,8 @@ class ConsoleService:
                                                 "steps_per_second", "elapsed_s", "time_left_s")}
             self.hub.publish(job.model, "iteration", {**keep, "job": job.id, "progress": progress, "t": event["t"]})
 
-    def _finish(self, job_id: int, returncode: int) -> None:
+    def _finish(self, job_id: int, returncode: int, runner_error: str | None = None) -> None:
+        self._queue_changed = True
         job = self.store.job(job_id)
         if job is None:
             return
@@ -309,7 +348,9 @@ class ConsoleService:
         result = _read_json(job_folder(job_id) / "result.json") or {}
         status = result.get("status")
         error = result.get("error")
-        if status not in ("done", "failed"):
+        if runner_error is not None:  # the runner ended it (wall-clock limit), whatever it wrote last
+            status, error = "failed", runner_error
+        elif status not in ("done", "failed"):
             status = "failed"
             error = error or _death_reason(returncode, job_folder(job_id) / "log.txt")
         self.store.update_job(job_id, status=status, finished=time.time(), error=error, result=result or None,

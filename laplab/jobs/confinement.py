@@ -35,11 +35,14 @@ SANDBOX_HOME = "/tmp/laplab"  # on the private /tmp (bwrap can only make folders
 
 @dataclass(frozen=True)
 class JobLimits:
-    """Per-job limits: address space (bytes), CPU time (s), largest file written (bytes)."""
+    """Per-job limits: address space (bytes), CPU time (s), largest file written (bytes), and the
+    wall-clock margin (s) a job gets past its own time budget before the server ends it (a job
+    blocked in a sleep or on a lock uses no CPU, so only a wall-clock watchdog catches it)."""
 
     memory_bytes: int = 6 * GIB
     cpu_seconds: int = 4 * 3600
     file_bytes: int = 4 * GIB
+    wall_margin_s: float = 600.0
 
 
 @dataclass(frozen=True)

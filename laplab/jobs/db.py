@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-JOB_KINDS = ("train", "clone", "evaluate", "resume")
+JOB_KINDS = ("train", "clone", "evaluate", "resume", "export")
 JOB_STATUSES = ("queued", "running", "stopping", "done", "failed", "interrupted")
 ACTIVE_STATUSES = ("queued", "running", "stopping")
 SESSION_LIFETIME_S = 7 * 24 * 3600.0
@@ -112,6 +112,8 @@ class JobStore:
         self._db.executescript(_SCHEMA)
         os.chmod(self.path, 0o600)
         self._verified: dict[str, tuple[int, float | None]] = {}  # sha256(token) -> (user id, expiry)
+        self._sessions: dict[str, tuple[int, float]] = {}  # sha256(session) -> (user id, expiry)
+        self._users: dict[int, User] = {}  # users never change once made; new ones are read on demand
 
     def close(self) -> None:
         with self._lock:
@@ -153,6 +155,18 @@ class JobStore:
                       (token_id, user_id, _hasher().hash(token), label, time.time(), expires))
         return token
 
+    def cached_user(self, token: str | None = None, session: str | None = None) -> User | None:
+        """The user of a token or session this store has already checked, from memory only (no
+        database read, no argon2): None when it has not (ask :meth:`user_for_token` /
+        :meth:`user_for_session`, which may block)."""
+        if token is not None:
+            hit = self._verified.get(_sha256(token)) if 0 < len(token) <= 512 else None
+        else:
+            hit = self._sessions.get(_sha256(session)) if session and len(session) <= 256 else None
+        if hit is None or (hit[1] is not None and hit[1] <= time.time()):
+            return None
+        return self._users.get(hit[0])
+
     def user_for_token(self, token: str) -> User | None:
         """The user a token logs in, or None. Verified tokens are remembered in memory (by SHA-256)
         so argon2's deliberate slowness is paid once per token and server run."""
@@ -179,8 +193,12 @@ class JobStore:
         return None
 
     def user_by_id(self, user_id: int) -> User | None:
-        rows = self._rows("SELECT * FROM users WHERE id=?", (user_id,))
-        return User(rows[0]["id"], rows[0]["name"], bool(rows[0]["is_admin"])) if rows else None
+        user = self._users.get(user_id)
+        if user is None:
+            rows = self._rows("SELECT * FROM users WHERE id=?", (user_id,))
+            if rows:
+                user = self._users[user_id] = User(rows[0]["id"], rows[0]["name"], bool(rows[0]["is_admin"]))
+        return user
 
     def user_by_name(self, name: str) -> User | None:
         rows = self._rows("SELECT * FROM users WHERE name=?", (name,))
@@ -205,13 +223,17 @@ class JobStore:
     def user_for_session(self, session: str) -> User | None:
         if not session or len(session) > 256:
             return None
-        rows = self._rows("SELECT user_id, expires FROM sessions WHERE hash=?", (_sha256(session),))
+        key = _sha256(session)
+        rows = self._rows("SELECT user_id, expires FROM sessions WHERE hash=?", (key,))
         if not rows or rows[0]["expires"] < time.time():
             return None
+        self._sessions[key] = (int(rows[0]["user_id"]), float(rows[0]["expires"]))
         return self.user_by_id(int(rows[0]["user_id"]))
 
     def end_session(self, session: str) -> None:
-        self._execute("DELETE FROM sessions WHERE hash=?", (_sha256(session),))
+        key = _sha256(session)
+        self._sessions.pop(key, None)
+        self._execute("DELETE FROM sessions WHERE hash=?", (key,))
 
     # -- model owners ------------------------------------------------------------------------------
 

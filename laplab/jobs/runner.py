@@ -13,10 +13,12 @@ to do, written by the server), ``log.txt``, ``events.jsonl`` (one JSON line per 
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import subprocess
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -27,8 +29,11 @@ from laplab.jobs.confinement import SANDBOX_HOME, JobLimits, Mounts, bubblewrap_
 
 @dataclass(frozen=True)
 class Finished:
+    """A job that ended: its exit status, and the runner's reason when the runner ended it."""
+
     job_id: int
     returncode: int
+    error: str | None = None
 
 
 class JobRunner(Protocol):
@@ -39,10 +44,33 @@ class JobRunner(Protocol):
         """Ask ``job`` to stop; it keeps its model (as Ctrl-C does on the CLI)."""
 
     def poll(self) -> list[Finished]:
-        """Jobs that ended since the last call."""
+        """Jobs that ended since the last call (the runner ends those past their wall-clock limit)."""
 
     def running(self) -> list[int]:
         """Ids of the jobs this runner has started and that have not ended."""
+
+
+def wall_limit_s(job: Job, margin_s: float) -> float:
+    """The most wall-clock seconds ``job`` may run: its own budget plus ``margin_s`` (start-up,
+    the last checkpoint and evaluation). ``params["wall_limit_s"]`` sets it for one job."""
+    if job.params.get("wall_limit_s"):
+        return float(job.params["wall_limit_s"])
+    if job.kind == "evaluate":  # simulated time runs faster than the wall clock
+        budget = float(job.params.get("trials") or 3) * float(job.params.get("max_trial_time") or 600.0)
+    elif job.kind == "export":
+        budget = 0.0
+    else:
+        budget = float(job.params.get("max_time_s") or 0.0)
+        if budget <= 0 or not math.isfinite(budget):
+            return math.inf  # a resume with its saved budget, unknown here: the CPU limit still applies
+    return budget + margin_s
+
+
+def overtime_message(limit_s: float, margin_s: float) -> str:
+    return (f"the job was still running {limit_s:.0f} s after it started, past its wall-clock limit (its own time "
+            f"budget + {margin_s:.0f} s), and was ended. A job that uses no CPU for that long is usually "
+            "blocked: a reward function sleeping or waiting on a lock, or reading from something that never "
+            "answers. The model keeps its last checkpoint: fix the reward function and train a clone, or resume it.")
 
 
 def job_folder(job_id: int) -> Path:
@@ -57,18 +85,23 @@ def owner_cache(owner: int) -> Path:
     return laplab_home() / "sandbox" / f"user-{owner}" / "cache"
 
 
+READ_ONLY_KINDS = ("export",)
+
+
 def job_mounts(job: Job) -> Mounts:
     """What the job may see (real path -> path inside the sandbox)."""
     folder = job_folder(job.id)
     target = models_dir() / job.model
     target.mkdir(parents=True, exist_ok=True)  # train/clone start in an empty, pre-made folder
-    writable = {str(folder): f"{SANDBOX_HOME}/job", str(target.resolve()): f"{SANDBOX_HOME}/models/{job.model}"}
+    writable = {str(folder): f"{SANDBOX_HOME}/job"}
+    readonly = {}
+    model_view = readonly if job.kind in READ_ONLY_KINDS else writable  # an export only reads its model
+    model_view[str(target.resolve())] = f"{SANDBOX_HOME}/models/{job.model}"
     cache = owner_cache(job.owner)
     cache.mkdir(parents=True, exist_ok=True)
     from laplab.jobs.warmup import seed
     seed(cache / "numba", laplab_home())
     writable[str(cache)] = f"{SANDBOX_HOME}/cache"
-    readonly = {}
     source = job.params.get("source")
     if source:
         readonly[str((models_dir() / source).resolve())] = f"{SANDBOX_HOME}/models/{source}"
@@ -103,6 +136,8 @@ class LocalProcessRunner:
         self.limits = limits
         self.sandbox = bubblewrap_works() if sandbox is None else sandbox
         self._processes: dict[int, subprocess.Popen] = {}
+        self._deadlines: dict[int, tuple[float, float]] = {}  # job id -> (monotonic deadline, limit s)
+        self._overtime: dict[int, str] = {}
 
     def start(self, job: Job) -> int:
         write_spec(job)
@@ -116,12 +151,15 @@ class LocalProcessRunner:
         command = [sys.executable, "-m", "laplab.jobs.worker", inside]
         process = start_confined(command, mounts, self._limits_for(job), folder / "log.txt", env, self.sandbox)
         self._processes[job.id] = process
+        limit = wall_limit_s(job, self.limits.wall_margin_s)
+        self._deadlines[job.id] = (time.monotonic() + limit, limit)
         return process.pid
 
     def _limits_for(self, job: Job) -> JobLimits:
         """CPU time: the job's wall budget on every core, plus a margin for start-up and evaluation."""
         budget = float(job.params.get("max_time_s") or 0) * (os.cpu_count() or 1) * 1.5 + 600
-        return JobLimits(self.limits.memory_bytes, int(min(self.limits.cpu_seconds, budget)), self.limits.file_bytes)
+        return JobLimits(self.limits.memory_bytes, int(min(self.limits.cpu_seconds, budget)), self.limits.file_bytes,
+                         self.limits.wall_margin_s)
 
     def stop(self, job: Job) -> None:
         """Ask through the job's folder (a signal would end bubblewrap, and with it the job, at once)."""
@@ -133,9 +171,16 @@ class LocalProcessRunner:
             os.killpg(process.pid, signal.SIGKILL)
 
     def poll(self) -> list[Finished]:
-        done = [Finished(job_id, p.returncode) for job_id, p in self._processes.items() if p.poll() is not None]
+        now = time.monotonic()
+        for job_id, (deadline, limit) in list(self._deadlines.items()):
+            if now > deadline and job_id not in self._overtime and self._processes[job_id].poll() is None:
+                self._overtime[job_id] = overtime_message(limit, self.limits.wall_margin_s)
+                self.kill(job_id)
+        done = [Finished(job_id, p.returncode, self._overtime.pop(job_id, None))
+                for job_id, p in self._processes.items() if p.poll() is not None]
         for item in done:
             del self._processes[item.job_id]
+            self._deadlines.pop(item.job_id, None)
         return done
 
     def running(self) -> list[int]:

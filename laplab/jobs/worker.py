@@ -1,4 +1,5 @@
-"""``python -m laplab.jobs.worker JOB_FOLDER``: run one console job (train, resume, clone, evaluate).
+"""``python -m laplab.jobs.worker JOB_FOLDER``: run one console job (train, resume, clone, evaluate,
+export for the car).
 
 The worker reads ``spec.json`` from its folder, runs the job with laplab's library calls, and reports
 only through files there (it cannot reach the database): ``events.jsonl`` gets one line per
@@ -15,7 +16,7 @@ import sys
 import threading
 import time
 import traceback
-from dataclasses import asdict, replace
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 
 POSES_HZ = 15.0
@@ -136,12 +137,50 @@ def _train(files: JobFiles, spec: dict) -> None:
 def _evaluate(files: JobFiles, spec: dict) -> None:
     from laplab.evaluate.trials import EvaluationSettings, evaluate_model
     params = spec["params"]
-    allowed = ("track", "trials", "checkpoint", "off_track_penalty", "crash_penalty", "resets", "continuous",
-               "max_trial_time", "video")
-    settings = EvaluationSettings(**{k: params[k] for k in allowed if k in params})
+    allowed = {f.name for f in fields(EvaluationSettings)} - {"force"}
+    settings = EvaluationSettings(**{k: v for k, v in params.items() if k in allowed})
     files.event("started")
     result, stamp = evaluate_model(spec["model"], settings)
     files.finish("done", stamp=stamp, summary=result.to_dict().get("summary"))
+
+
+EXPORT_FORMATS = ("car", "console")
+TENSORFLOW_MISSING = ("the car's format needs TensorFlow on the console's machine ({}): install it there with "
+                      "`pip install 'laplab[deepracer]'` (tensorflow-cpu, openvino) and restart `laplab serve`.")
+
+
+class ExportJobError(ValueError):
+    """An export that cannot be made, with the message for the model's page."""
+
+
+def _export(files: JobFiles, spec: dict) -> None:
+    """The car's tar.gz (``agent/model.pb`` + ``model_metadata.json``) or the DeepRacer console's
+    import layout (as a tar.gz), built from the model's checkpoint with TensorFlow into ``export/``."""
+    import tarfile
+    name, params = spec["model"], spec["params"]
+    fmt, checkpoint = params["format"], params.get("checkpoint", "best")
+    try:
+        import tensorflow  # noqa: F401  (fail early, with the install line)
+        from laplab.export.car import CarExportError, export_car
+        from laplab.export.console import export_console
+    except ImportError as exc:
+        raise ExportJobError(TENSORFLOW_MISSING.format(exc)) from None
+    out = files.folder / "export"
+    out.mkdir(exist_ok=True)
+    files.event("started", format=fmt)
+    try:
+        if fmt == "car":
+            path, graph = export_car(name, checkpoint, out / f"{name}.tar.gz")
+        else:
+            result = export_console(name, checkpoint, out / f"{name}-console")
+            graph, path = result.graph, out / f"{name}-console.tar.gz"
+            with tarfile.open(path.with_suffix(".tmp"), "w:gz") as tar:
+                tar.add(result.folder, arcname=f"{name}-console")
+            path.with_suffix(".tmp").replace(path)
+    except (CarExportError, FileNotFoundError) as exc:
+        raise ExportJobError(str(exc)) from None
+    files.finish("done", format=fmt, file=path.name, size=path.stat().st_size, checkpoint=graph.checkpoint,
+                 parity_error=graph.parity_error)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -156,9 +195,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"laplab job {spec['id']}: {spec['kind']} {spec['model']}", flush=True)
         if spec["kind"] == "evaluate":
             _evaluate(files, spec)
+        elif spec["kind"] == "export":
+            _export(files, spec)
         else:
             _train(files, spec)
-    except (*user_error_types(), EvaluationError, MemoryError) as exc:
+    except (*user_error_types(), EvaluationError, ExportJobError, MemoryError) as exc:
         message = str(exc) if not isinstance(exc, MemoryError) else "the job ran out of its memory limit"
         print(message, file=sys.stderr, flush=True)
         files.finish("failed", error=message)

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import socket
+from pathlib import Path
 import threading
 import time
 from contextlib import contextmanager
@@ -49,17 +50,74 @@ class RunningConsole:
         raise AssertionError(f"{name} did not reach {statuses} within {timeout_s} s: {model}")
 
 
+_NUMBA_SEED: dict = {}  # "root": where seeds are kept (pytest's cache folder), "cache": this session's
+
+
+def pytest_configure(config):
+    cache = getattr(config, "cache", None)
+    if cache is not None:
+        _NUMBA_SEED["root"] = cache.mkdir("laplab-numba-seed")
+
+
+def _source_stamp() -> str:
+    """A hash of laplab's source files (names, sizes, mtimes): a seed is remade when they change."""
+    import hashlib
+    from pathlib import Path
+
+    import laplab
+    digest = hashlib.sha256()
+    for path in sorted(Path(laplab.__file__).parent.rglob("*.py")):
+        stat = path.stat()
+        digest.update(f"{path}:{stat.st_size}:{stat.st_mtime_ns}".encode())
+    return digest.hexdigest()[:16]
+
+
+def numba_seed(base) -> Path:
+    """A trusted numba cache for the consoles of the tests, made by laplab's own warm-up (as
+    ``laplab serve`` makes one per home) once per source version (kept in pytest's cache folder):
+    each new user's jobs start from a copy instead of compiling every kernel (tens of seconds per
+    job on a loaded machine)."""
+    if "cache" not in _NUMBA_SEED:
+        import os
+        import shutil
+        import subprocess
+        import sys
+        from pathlib import Path
+
+        from laplab.jobs.warmup import READY_MARKER
+        root = Path(_NUMBA_SEED.get("root") or base)
+        cache = root / f"numba-{_source_stamp()}"
+        if not (cache / READY_MARKER).exists():
+            for old in root.glob("numba-*"):
+                shutil.rmtree(old, ignore_errors=True)
+            cache.mkdir(parents=True, exist_ok=True)
+            env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+            subprocess.run([sys.executable, "-m", "laplab.jobs.warmup", str(cache)], env=env, check=True,
+                           stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, timeout=900)
+            assert (cache / READY_MARKER).exists()
+        _NUMBA_SEED["cache"] = cache
+    return _NUMBA_SEED["cache"]
+
+
 @contextmanager
 def serve(home, workers: int = 2, **kwargs):
-    """A console over ``home`` on a free port; stops it (and its jobs) on exit."""
+    """A console over ``home`` on a free port, its numba cache seeded (:func:`numba_seed`); stops it
+    (and its jobs) on exit."""
+    import shutil
+
     import uvicorn
 
     from laplab.console.app import create_app
+    from laplab.jobs.warmup import trusted_cache
+    from pathlib import Path
+    seed = numba_seed(Path(home).parent)
+    if not trusted_cache(Path(home)).exists():
+        shutil.copytree(seed, trusted_cache(Path(home)))
     mp = pytest.MonkeyPatch()
     mp.setenv("LAPLAB_HOME", str(home))
     mp.setenv("LAPLAB_ADMIN_TOKEN", ADMIN_TOKEN)
     try:
-        app = create_app(workers, **{"warm_cache": False, **kwargs})  # jobs compile their own (less load)
+        app = create_app(workers, **{"warm_cache": False, **kwargs})  # seeded above
         port = free_port()
         server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
         thread = threading.Thread(target=server.run, daemon=True)
@@ -94,6 +152,12 @@ def console(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def numba_cache(tmp_path_factory):
+    """The session's trusted numba cache (see :func:`numba_seed`)."""
+    return numba_seed(tmp_path_factory.getbasetemp())
+
+
+@pytest.fixture(scope="session")
 def admin_token() -> str:
     return ADMIN_TOKEN
 
@@ -104,14 +168,18 @@ def make_model():
     return create_tiny_model
 
 
-def create_tiny_model(name: str, reward_source: str | None = None):
-    """A real model folder (initial checkpoint, no iterations) made by laplab's create_training."""
+def create_tiny_model(name: str, reward_source: str | None = None, sensor: list[str] | None = None):
+    """A real model folder (initial checkpoint, no iterations) made by laplab's create_training;
+    ``sensor`` (default ``["STATE"]``) e.g. ``["FRONT_FACING_CAMERA"]`` for a model the car can run."""
     from dataclasses import replace
 
+    from laplab.env.metadata import ModelMetadata
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import create_training
     config = replace(TrainConfig(), hyperparameters={**TrainConfig().hyper().to_dict(), **TINY_HYPERPARAMETERS},
                      max_time_s=5.0)
+    if sensor is not None:
+        config = replace(config, model_metadata={**ModelMetadata().to_dict(), "sensor": sensor})
     if reward_source is not None:
         import tempfile
         from pathlib import Path

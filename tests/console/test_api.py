@@ -32,6 +32,7 @@ def test_health_is_public_and_everything_else_needs_a_user(console):
 def test_openapi_lists_the_routes(console):
     spec = console.admin.get("/openapi.json").json()
     for path in ("/api/models", "/api/models/{name}", "/api/models/{name}/stop", "/api/models/{name}/clone",
+                 "/api/models/{name}/exports", "/api/models/{name}/exports/{job_id}",
                  "/api/models/{name}/evaluations", "/api/models/{name}/evaluations/{job_id}",
                  "/api/models/{name}/events", "/api/models/{name}/download", "/api/reward/validate",
                  "/api/leaderboard", "/api/tracks", "/api/health"):
@@ -126,6 +127,9 @@ def test_authorisation_matrix(console, make_model):
                                ("POST", "/api/models/bob-model/clone", {"name": "stolen"}),
                                ("POST", "/api/models/bob-model/resume", {}), ("GET", "/api/models/bob-model/log", None),
                                ("GET", "/models/bob-model", None), ("GET", "/models/bob-model/report", None),
+                               ("GET", "/models/bob-model/report/", None), ("GET", "/models/bob-model/report/training.png", None),
+                               ("POST", "/api/models/bob-model/exports", {"format": "car"}),
+                               ("GET", "/api/models/bob-model/exports", None), ("GET", "/api/models/bob-model/exports/1/file", None),
                                ("GET", "/create?clone=bob-model", None)):
         answer = alice.request(method, path, json=body)
         assert answer.status_code == 404, (method, path, answer.status_code)
@@ -152,6 +156,25 @@ def test_evaluation_requests_are_checked(console, make_model):
     assert console.admin.post("/api/models/eval-checks/evaluations", json={"off_track_penalty": -1}).status_code == 400
     assert console.admin.get("/api/models/eval-checks/evaluations/999").status_code == 404
     assert console.admin.post("/api/models/eval-checks/stop").status_code == 409
+    from laplab.evaluate.trials import EvaluationError, EvaluationSettings
+    with pytest.raises(EvaluationError) as raised:
+        EvaluationSettings(crash_penalty=float("nan"))
+    answer = console.admin.post("/api/models/eval-checks/evaluations", json={"crash_penalty": "NaN"})
+    assert answer.status_code == 400 and answer.json()["detail"]["message"] == str(raised.value)  # the library's words
+    forced = console.admin.post("/api/models/eval-checks/evaluations", json={"trials": 50, "force": True})
+    assert forced.status_code == 422 and forced.json()["detail"]["field"] == "force"  # the console keeps 1..5 trials
+
+
+def test_the_evaluate_request_is_evaluation_settings(console):
+    """One definition: the API's Evaluate schema has EvaluationSettings' fields and defaults (but force)."""
+    from dataclasses import fields
+
+    from laplab.evaluate.trials import EvaluationSettings
+    schema = console.admin.get("/openapi.json").json()["components"]["schemas"]["Evaluate"]
+    expected = {f.name: f.default for f in fields(EvaluationSettings) if f.name != "force"}
+    assert set(schema["properties"]) == set(expected) and schema["additionalProperties"] is False
+    for name, default in expected.items():
+        assert schema["properties"][name].get("default") == default, name
 
 
 def test_tracks_examples_and_empty_leaderboard(console):

@@ -5,6 +5,7 @@ kept under the test's output folder (``tmp_path``)."""
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
 
 import pytest
@@ -89,14 +90,32 @@ def test_console_in_chromium(console, page, tmp_path):
     download.value.save_as(target)
     assert target.read_bytes()[:2] == b"\x1f\x8b"
 
+    if importlib.util.find_spec("tensorflow") is not None:  # Download for the car: an export job, whose
+        page.click("#export-car")  # error shows on the page (a STATE model cannot drive the real car)
+        page.wait_for_selector("[data-export][data-status='failed']", timeout=300_000)
+        assert "not supported by the DeepRacer car" in page.inner_text("[data-export]")
+        assert page.locator("[data-export] a").count() == 0
+        shot(page, tmp_path, "06-model-car-download")
+
+    href = page.get_attribute("#report", "href")  # the Report button: the model's HTML report
+    assert href == "/models/browser-model/report/"
+    report = page.context.new_page()
+    report.goto(f"{url}{href}", timeout=240_000)  # built by `laplab report` in a child process
+    report.wait_for_selector("figure img")
+    report.wait_for_function("Array.from(document.images).every(i => i.complete)")
+    assert report.evaluate("Array.from(document.images).every(i => i.naturalWidth > 0)")  # figures, not broken links
+    assert report.locator("figure img").count() >= 3
+    shot(report, tmp_path, "07-report")
+    report.close()
+
     page.click("text=Leaderboard")
     page.wait_for_selector("[data-board='oval'] tbody tr")
     assert "browser-model" in page.inner_text("[data-board='oval']")
-    shot(page, tmp_path, "06-leaderboard")
+    shot(page, tmp_path, "08-leaderboard")
 
     page.click("text=Your models")
     page.wait_for_selector("tr[data-model='browser-model']")
-    shot(page, tmp_path, "07-models")
+    shot(page, tmp_path, "09-models")
     page.on("dialog", lambda dialog: dialog.accept())
     page.click("[data-delete='browser-model']")
     page.wait_for_selector("tr[data-model='browser-model']", state="detached")

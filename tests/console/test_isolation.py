@@ -47,7 +47,7 @@ def misbehaving_reward(body: str) -> str:
 
 @pytest.fixture(scope="module")
 def confined_console(tmp_path_factory, serve_console):
-    with serve_console(tmp_path_factory.mktemp("isolation-home"), workers=3, limits=JobLimits(cpu_seconds=150)) as running:
+    with serve_console(tmp_path_factory.mktemp("isolation-home"), workers=3, limits=JobLimits(cpu_seconds=45)) as running:
         yield running
 
 

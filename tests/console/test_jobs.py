@@ -85,6 +85,16 @@ def test_train_watch_stop_evaluate_leaderboard_download_import_clone(console):
         assert {"lap_time", "progress", "status", "off_track_count"} <= set(trial)
     assert evaluation["summary"]["optimal_lap_time"] > 0
 
+    report = admin.get("/models/live-model/report", follow_redirects=True)
+    assert report.status_code == 200 and str(report.url).endswith("/models/live-model/report/"), report.text[:300]
+    import re
+    figures = re.findall(r'<img src="([^"]+)"', report.text)
+    assert "live-model" in report.text and len(figures) >= 3, figures
+    for figure in figures:  # each figure is served beside the page, as a real PNG
+        picture = admin.get(f"/models/live-model/report/{figure}")
+        assert picture.status_code == 200 and picture.content[:4] in (b"\x89PNG", b"GIF8"), figure
+    assert admin.get("/models/live-model/report/..%2Flaplab.json").status_code == 404
+
     boards = admin.get("/api/leaderboard?track=oval").json()
     assert boards[0]["entries"][0]["model"] == "live-model" and boards[0]["entries"][0]["user"] == "admin"
 

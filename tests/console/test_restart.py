@@ -54,7 +54,11 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_sigkill_restart_interrupts_then_resumes(tmp_path, monkeypatch):
+def test_sigkill_restart_interrupts_then_resumes(tmp_path, monkeypatch, numba_cache):
+    import shutil
+
+    from laplab.jobs.warmup import trusted_cache
+    shutil.copytree(numba_cache, trusted_cache(tmp_path))  # the server's warm-up, done once per session
     port, log = free_port(), tmp_path / "server.log"
     server = start_server(tmp_path, port, log)
     try:

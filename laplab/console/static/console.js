@@ -265,7 +265,7 @@ const Console = (() => {
       const s = $("#status"); s.className = `status ${status}`; s.dataset.status = status; s.textContent = status;
       const active = ["training", "queued", "stopping"].includes(status);
       $("#stop").hidden = !["training", "queued"].includes(status); $("#resume").hidden = status !== "interrupted";
-      for (const id of ["#evaluate", "#clone", "#download-tar", "#download-onnx"]) { const n = $(id); n.classList.toggle("disabled", active); if (n.tagName === "BUTTON") n.disabled = active; }
+      for (const id of ["#evaluate", "#clone", "#download-tar", "#download-onnx", "#export-car", "#export-console"]) { const n = $(id); n.classList.toggle("disabled", active); if (n.tagName === "BUTTON") n.disabled = active; }
       if (progress !== undefined) $("#stat-progress").textContent = `${fmt(progress, 0)} %`;
     };
     const renderRows = () => {
@@ -300,7 +300,7 @@ const Console = (() => {
     const refresh = async () => { model = await api("GET", `/api/models/${name}`); rows = model.iterations || []; renderModel(); renderRows(); };
     const events = new EventSource(`/api/models/${name}/events`);
     events.addEventListener("iteration", ev => { const r = JSON.parse(ev.data); if (!rows.length || rows[rows.length - 1].iteration < r.iteration) rows.push(r); $("#stat-progress").textContent = `${fmt(r.progress, 0)} %`; renderRows(); });
-    events.addEventListener("status", ev => { const s = JSON.parse(ev.data); if (s.status) setStatus(["queued", "training", "stopping", "ready", "failed", "interrupted", "stopped"].includes(s.status) && !(s.kind === "evaluate") ? (s.status === "stopped" ? model.status : s.status) : model.status); refresh(); loadEvaluations(); });
+    events.addEventListener("status", ev => { const s = JSON.parse(ev.data); if (s.status) setStatus(["queued", "training", "stopping", "ready", "failed", "interrupted", "stopped"].includes(s.status) && !["evaluate", "export"].includes(s.kind) ? (s.status === "stopped" ? model.status : s.status) : model.status); refresh(); loadEvaluations(); });
     events.addEventListener("poses", ev => live.update(JSON.parse(ev.data)));
     $("#stop").addEventListener("click", async () => { try { await api("POST", `/api/models/${name}/stop`); toast("stopping: the model keeps its last checkpoint"); refresh(); } catch (e) { toast(e.message); } });
     $("#resume").addEventListener("click", async () => { try { await api("POST", `/api/models/${name}/resume`, {}); toast("resumed"); refresh(); } catch (e) { toast(e.message); } });
@@ -325,6 +325,22 @@ const Console = (() => {
       catch (e) { $("#eval-error").textContent = e.message; }
     });
     loadEvaluations();
+    const formats = {car: "Car (model.pb tar.gz)", console: "DeepRacer console format (tar.gz)"};
+    async function loadExports() {
+      const list = await api("GET", `/api/models/${name}/exports`);
+      $("#exports").replaceChildren(...list.slice().reverse().map(x => el("div", {class: "export row", "data-export": x.id, "data-status": x.status},
+        el("span", {}, `${formats[x.format] || x.format} · ${x.checkpoint || "best"} `), badge(x.status),
+        x.url ? el("a", {class: "button primary", href: x.url, download: ""}, `Download${x.size ? ` (${fmt(x.size / 1e6, 1)} MB)` : ""}`) : "",
+        x.error ? el("span", {class: "field-error"}, x.error) : "")));
+      if (list.some(x => ["queued", "running"].includes(x.status))) setTimeout(loadExports, 1500);
+    }
+    const startExport = async format => {
+      try { await api("POST", `/api/models/${name}/exports`, {format}); toast(`building the ${formats[format]}…`); $("#exports-card").scrollIntoView({behavior: "smooth"}); loadExports(); }
+      catch (e) { toast(e.message); $("#exports").prepend(el("p", {class: "field-error"}, e.message)); }
+    };
+    $("#export-car").addEventListener("click", () => startExport("car"));
+    $("#export-console").addEventListener("click", () => startExport("console"));
+    loadExports();
     const log = async () => { try { $("#job-log").textContent = (await api("GET", `/api/models/${name}/log`)).log; } catch (e) {} };
     log(); setInterval(() => { log(); if (!model.config || ["training", "queued", "stopping"].includes(model.status)) refresh(); }, 5000);
   }
