@@ -180,11 +180,14 @@ def _start_workers(trainer, console: Console, ray_address: str | None, watch):
 
 
 def _scale(args: argparse.Namespace) -> tuple[int | None, str]:
-    """(--workers, the learner's device), checked."""
+    """(--workers, the learner's device), checked, and the cluster reachable, before any folder is written."""
     from laplab.cluster.launch import resolve_device
     from laplab.errors import UserError
     if args.workers is not None and args.workers < 1:
         raise UserError(f"--workers must be at least 1, got {args.workers}")
+    if args.ray_address:
+        from laplab.cluster.collector import check_reachable
+        check_reachable(args.ray_address)
     return args.workers, resolve_device(args.device)
 
 
