@@ -97,3 +97,34 @@ def test_an_unreachable_cluster_is_a_clear_error():
         check_reachable(f"127.0.0.1:{port}", timeout_s=2)
     with pytest.raises(JobError, match="HOST:PORT"):
         check_reachable("nonsense")
+
+
+def test_device_cuda_without_a_gpu_is_a_clear_error():
+    from laplab.cluster.launch import resolve_device
+    torch = pytest.importorskip("torch")
+    assert resolve_device("cpu") == "cpu"
+    with pytest.raises(JobError, match="cpu or cuda"):
+        resolve_device("tpu")
+    if torch.cuda.is_available():
+        assert resolve_device("cuda") == "cuda"
+    else:
+        with pytest.raises(JobError, match="no usable GPU"):
+            resolve_device("cuda")
+
+
+def test_a_folder_resumed_with_several_workers_moves_to_the_multi_worker_layout(tmp_path):
+    from laplab.store.layout import ModelFolder
+    from laplab.train.recorder import ModelFolderRecorder
+    folder = ModelFolder(tmp_path / "m").create()
+    for k in (0, 1):
+        folder.training_simtrace(k).write_text("episode\n")
+    ModelFolderRecorder(folder, iteration=2, episodes=40, workers=1)
+    assert folder.simtrace_workers() == [] and folder.list_training_iterations() == [0, 1]
+    ModelFolderRecorder(folder, iteration=2, episodes=40, workers=3)
+    assert not folder.training_simtrace_dir.exists()  # else deepracer-utils reads it as single-worker
+    assert folder.simtrace_workers() == [0] and folder.list_training_iterations() == [0, 1]
+    assert folder.training_simtrace_files(1) == [folder.worker_training_simtrace(0, 1)]
+    folder.worker_training_simtrace(2, 1).parent.mkdir(parents=True)
+    folder.worker_training_simtrace(2, 1).write_text("episode\n")
+    ModelFolderRecorder(folder, iteration=1, episodes=20, workers=1)  # resumed from checkpoint 1
+    assert folder.list_training_iterations() == [0]  # iteration 1 of every worker dropped
