@@ -38,12 +38,17 @@ def make_trainer(name: str, sensor: str, episodes: int, workers: int):
     return create_training(name, replace(base, hyperparameters=hyper, workers=workers))
 
 
-def steps_per_second(trainer, iterations: int) -> float:
+def steps_per_second(trainer, iterations: int) -> tuple[float, float]:
+    """(env steps per wall second of the collection step, the share of that wall time the slowest
+    worker spent driving: the rest is Ray's overhead, broadcast, transfer and merge)."""
     trainer._collect(lambda: False)  # warm-up: JIT, first frames
-    steps, started = 0, time.perf_counter()
+    steps, driving, started = 0, 0.0, time.perf_counter()
     for _ in range(iterations):
-        steps += trainer._collect(lambda: False).env_steps
-    return steps / (time.perf_counter() - started)
+        batch = trainer._collect(lambda: False)
+        steps += batch.env_steps
+        driving += batch.wall_seconds
+    wall = time.perf_counter() - started
+    return steps / wall, driving / wall
 
 
 def main() -> None:
@@ -67,13 +72,14 @@ def main() -> None:
     for sensor in args.sensors:
         figures = {}
         trainer = make_trainer(f"inproc-{sensor.lower().replace('_', '-')}", sensor, args.episodes, 1)
-        figures["in-process"] = steps_per_second(trainer, args.iterations)
-        print(f"{sensor:20s} in-process  {figures['in-process']:9.0f} env steps/s", flush=True)
+        figures["in-process"], share = steps_per_second(trainer, args.iterations)
+        print(f"{sensor:20s} in-process  {figures['in-process']:9.1f} env steps/s (driving {share:.0%})", flush=True)
         for workers in args.workers:
             trainer = make_trainer(f"ray{workers}-{sensor.lower().replace('_', '-')}", sensor, args.episodes, workers)
             with attach_workers(trainer, workers, args.ray_address):
-                figures[workers] = steps_per_second(trainer, args.iterations)
-            print(f"{sensor:20s} ray x{workers:<5d} {figures[workers]:9.0f} env steps/s", flush=True)
+                figures[workers], share = steps_per_second(trainer, args.iterations)
+            print(f"{sensor:20s} ray x{workers:<5d} {figures[workers]:9.1f} env steps/s (driving {share:.0%})",
+                  flush=True)
         if 1 in figures:
             print(f"{sensor:20s} overhead: ray x1 / in-process = {figures[1] / figures['in-process']:.2f}")
             for workers in args.workers:

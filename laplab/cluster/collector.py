@@ -77,9 +77,15 @@ def connect_ray(address: str | None, workers: int) -> bool:
     quiet = {"logging_level": logging.ERROR, "log_to_driver": False, "configure_logging": True}
     if address:
         check_reachable(address)
-        ray.init(address=address, **quiet)
-    else:
-        ray.init(num_cpus=max(workers + 1, os.cpu_count() or 1), include_dashboard=False, **quiet)
+    try:
+        if address:
+            ray.init(address=address, **quiet)
+        else:
+            ray.init(num_cpus=max(workers + 1, os.cpu_count() or 1), include_dashboard=False, **quiet)
+    except Exception as exc:  # Ray's own start-up errors: a paragraph, not a traceback
+        where = f"join the Ray cluster at {address}" if address else "start a local Ray"
+        raise JobError(f"could not {where}: {_reason(exc)} (an overloaded machine can make Ray's start time "
+                       "out; try again, or use fewer --workers)") from None
     return True
 
 

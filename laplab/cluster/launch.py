@@ -8,6 +8,7 @@ the workers and plugs them into the trainer; a multi-track job also evaluates on
 
 from __future__ import annotations
 
+import os
 from typing import Callable
 
 from laplab.cluster.collector import RayCollector
@@ -40,10 +41,12 @@ def worker_setups(config, reward_source: str, reward_path: str, workers: int,
     shares = split_cars(config.hyper().num_episodes_between_training, workers)
     setups, offset = [], 0
     data = config.to_dict()
+    camera_threads = max(1, (os.cpu_count() or 1) // workers)  # a machine's cores shared by its workers
     for index, cars in enumerate(shares):
         track, reverse = tracks[index % len(tracks)]
         setups.append(WorkerSetup(data, index, track, reverse, cars, offset, worker_seed(config.seed, index),
-                                  reward_source, reward_path, reward_timeout_s, reward_wait_timeout_s))
+                                  reward_source, reward_path, reward_timeout_s, reward_wait_timeout_s,
+                                  camera_threads))
         offset += cars
     return setups
 

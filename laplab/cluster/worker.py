@@ -26,7 +26,8 @@ class WorkerSetup:
     ``track`` / ``reverse``, ``num_cars`` (its episodes per iteration), ``start_offset`` (how many
     episodes of the iteration come before its own, so the round-robin starts are consecutive across
     workers), ``seed``, the reward function's ``reward_source`` text and ``reward_path`` (named in
-    errors), and the watchdog's limits (s)."""
+    errors), the watchdog's limits (s), and the torch threads of a camera network (a vector network
+    acts fastest on one)."""
 
     config: dict
     index: int
@@ -39,6 +40,7 @@ class WorkerSetup:
     reward_path: str
     reward_timeout_s: float = 5.0
     reward_wait_timeout_s: float = 60.0
+    camera_threads: int = 1
 
     @property
     def track_label(self) -> str:
@@ -107,8 +109,8 @@ class RolloutWorker:
         self.reward_fn = _compile_reward(setup.reward_source, setup.reward_path, "reward_function",
                                          float(max_speed), DEEPRACER.max_steering_deg)
         self.stepper = EpisodeStepper(self.sim, config.spec.action_space, self.reward_fn)
-        # one thread: a machine's cores are shared by its workers
-        self.learner = build_learner(replace(config, num_threads=1), setup.seed)
+        threads = setup.camera_threads if config.spec.camera is not None else 1
+        self.learner = build_learner(replace(config, num_threads=config.num_threads or threads), setup.seed)
 
     def ping(self) -> int:
         """The worker's process id (it is alive)."""
