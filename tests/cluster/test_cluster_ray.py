@@ -92,12 +92,14 @@ def test_dead_workers_are_restarted_and_the_job_resumes_with_one_worker(local_ra
             os._exit(3)  # the reward function takes its worker's process down, once
         """)
     trainer = create_training("faults", small_config(reward_path=path, workers=2, max_episodes=8))
-    notices, killed = [], []
+    notices, killed, polls = [], [], []
 
-    def kill_during_second_collection():
-        if trainer.iteration == 1 and not killed and trainer.collector.pids():
-            ray.kill(trainer.collector.actors[0], no_restart=True)  # the collect task is in flight
-            killed.append(True)
+    def kill_during_second_collection():  # polled before each iteration, then while collecting
+        if trainer.iteration == 1:
+            polls.append(1)
+            if len(polls) == 2:  # the first poll of the collection: worker 0's task is in flight
+                ray.kill(trainer.collector.actors[0], no_restart=True)
+                killed.append(True)
         return False
     with attach_workers(trainer, 2, notify=notices.append) as collector:
         result = trainer.run(should_stop=kill_during_second_collection)
