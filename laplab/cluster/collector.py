@@ -19,13 +19,13 @@ from __future__ import annotations
 import logging
 import os
 import socket
-import time
 from typing import Callable, Sequence
 
 import numpy as np
 
 from laplab.cluster.batches import TaggedEpisodeBatch, merge_batches
-from laplab.cluster.worker import RolloutWorker, RolloutWorkerError, WorkerResult, WorkerSetup, policy_weights, worker_seed
+from laplab.cluster.worker import (RolloutWorker, RolloutWorkerError, WorkerResult, WorkerSetup, policy_weights,
+                                   worker_seed)
 from laplab.train.collect import CollectionAborted
 from laplab.train.errors import JobError
 

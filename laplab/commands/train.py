@@ -96,7 +96,8 @@ def _overrides(args: argparse.Namespace) -> dict:
     from laplab.train.config import parse_duration
     tracks = args.track or []
     out = {"track": tracks[0] if len(tracks) == 1 else None,
-           "tracks": tuple(tracks) if len(tracks) > 1 else (() if tracks else None), "reward_path": str(Path(args.reward).resolve()) if args.reward else None,
+           "tracks": tuple(tracks) if len(tracks) > 1 else (() if tracks else None),
+           "reward_path": str(Path(args.reward).resolve()) if args.reward else None,
            "max_episodes": args.max_episodes, "seed": args.seed,
            "max_time_s": parse_duration(args.max_time) if args.max_time else None}
     if args.model_metadata:

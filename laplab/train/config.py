@@ -127,7 +127,8 @@ class TrainConfig:
         """The config with every value written out (laplab.json: a resumed job keeps its
         hyperparameters even if laplab's defaults change)."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}
-        return {**values, "tracks": list(self.tracks), "model_metadata": self.model_metadata.to_dict(), "hyperparameters": self.hyper().to_dict()}
+        return {**values, "tracks": list(self.tracks), "model_metadata": self.model_metadata.to_dict(),
+                "hyperparameters": self.hyper().to_dict()}
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "laplab.json") -> "TrainConfig":
