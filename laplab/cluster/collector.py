@@ -71,7 +71,11 @@ def check_reachable(address: str, timeout_s: float = 3.0) -> None:
 def connect_ray(address: str | None, workers: int) -> bool:
     """Join the cluster at ``address``, or start a quiet local Ray (no dashboard) with at least one
     CPU per worker. Returns True when this call started (and so must stop) Ray."""
-    import ray
+    try:
+        import ray
+    except ImportError:
+        raise JobError("rollout workers (--workers above 1, or --ray-address) run on Ray, which is not installed: "
+                       "pip install -e \".[train,cluster]\" (ray[default]==2.60.0), or train with --workers 1") from None
     if ray.is_initialized():
         return False
     quiet = {"logging_level": logging.ERROR, "log_to_driver": False, "configure_logging": True}
