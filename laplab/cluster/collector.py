@@ -116,8 +116,8 @@ class RayCollector:
     # -- lifetime --------------------------------------------------------------------------------
 
     def start(self) -> "RayCollector":
+        self._started_ray = connect_ray(self.ray_address, len(self.setups))  # first: a clear error without Ray
         import ray
-        self._started_ray = connect_ray(self.ray_address, len(self.setups))
         self._actor_class = ray.remote(num_cpus=1, max_restarts=0)(RolloutWorker)
         self.actors = [self._actor_class.remote(setup) for setup in self.setups]
         try:
