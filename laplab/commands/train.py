@@ -192,6 +192,13 @@ def _scale(args: argparse.Namespace) -> tuple[int | None, str]:
     return args.workers, resolve_device(args.device)
 
 
+def _check_workers(config) -> None:
+    """Enough workers for the tracks and not more than the episodes, before a folder is written."""
+    if config.workers > 1 or len(config.training_tracks()) > 1:
+        from laplab.cluster.launch import check_workers
+        check_workers(config, config.workers)
+
+
 def run_train(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -222,7 +229,9 @@ def run_train(args: argparse.Namespace) -> int:
         values["precision"] = args.precision
         workers, device = _scale(args)
         values["workers"] = workers or 1
-        trainer = create_training(args.name, replace(TrainConfig(), **values), device=device)
+        config = replace(TrainConfig(), **values)
+        _check_workers(config)
+        trainer = create_training(args.name, config, device=device)
     return run_trainer(trainer, console, args.quiet, args.reward_timeout, args.ray_address)
 
 
@@ -233,6 +242,7 @@ def run_clone(args: argparse.Namespace) -> int:
     workers, device = _scale(args)
     config, weights = clone_config(args.source, {**_overrides(args), "workers": workers},
                                    trust_reward=args.trust_reward)
+    _check_workers(config)
     trainer = create_training(args.name, config, init_weights=weights, device=device)
     console.print(f"cloned {args.source} -> {args.name}")
     return run_trainer(trainer, console, args.quiet, args.reward_timeout, args.ray_address)
