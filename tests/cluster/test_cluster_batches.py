@@ -128,3 +128,11 @@ def test_a_folder_resumed_with_several_workers_moves_to_the_multi_worker_layout(
     folder.worker_training_simtrace(2, 1).write_text("episode\n")
     ModelFolderRecorder(folder, iteration=1, episodes=20, workers=1)  # resumed from checkpoint 1
     assert folder.list_training_iterations() == [0]  # iteration 1 of every worker dropped
+
+
+def test_a_multi_track_job_without_enough_workers_writes_nothing(tmp_path, monkeypatch, capsys):
+    from laplab.cli import main
+    monkeypatch.setenv("LAPLAB_HOME", str(tmp_path / "home"))
+    code = main(["train", "--name", "mt", "--track", "classic_2018", "--track", "classic_2018@reversed"])
+    assert code == 2 and "add --workers 2" in capsys.readouterr().err
+    assert not (tmp_path / "home" / "models" / "mt").exists()
