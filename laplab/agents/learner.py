@@ -86,7 +86,7 @@ def learner_class(algorithm: str) -> type:
 
 
 def build_learner(spec: ModelSpec, hyperparameters: Hyperparameters, seed: int | None = None,
-                  num_threads: int | None = None, precision: str = "float32") -> Learner:
+                  num_threads: int | None = None, precision: str = "float32", device: str = "cpu") -> Learner:
     """The learner of a model: its algorithm, networks for its observation space and action space.
 
     Small vector networks run fastest on one thread (more threads only add synchronisation, and
@@ -99,4 +99,4 @@ def build_learner(spec: ModelSpec, hyperparameters: Hyperparameters, seed: int |
         keep_freed_memory()
     threads = num_threads or (1 if spec.camera is None else None)
     return cls(spec.observation_space, spec.gym_action_space, hyperparameters, spec.network, seed=seed,
-               num_threads=threads, precision=precision)
+               num_threads=threads, precision=precision, device=device)

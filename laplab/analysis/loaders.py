@@ -296,8 +296,7 @@ def load_training_traces(folder: ModelFolder, iterations: list[int] | np.ndarray
     """The training simtrace rows of the given 1-based iterations (files that do not exist are skipped)."""
     traces = []
     for iteration in iterations:
-        path = folder.training_simtrace(int(iteration) - 1)
-        if path.is_file():
+        for path in folder.training_simtrace_files(int(iteration) - 1):  # one per rollout worker
             traces.append(read_trace_file(path, int(iteration)))
     return concatenate_traces(traces)
 

@@ -14,7 +14,9 @@ from laplab.agents.hyperparameters import PRECISIONS
 
 def _add_job_options(parser: argparse.ArgumentParser, defaults: bool) -> None:
     none = None
-    parser.add_argument("--track", default=none, help="track name or .npy path (default: classic_2018)")
+    parser.add_argument("--track", action="append", default=none,
+                        help="track name or .npy path (default: classic_2018); NAME@reversed drives it the other "
+                             "way; repeat it for a multi-track job (rollout worker i drives track i mod count)")
     parser.add_argument("--reward", default=none, help="reward_function.py (default: laplab's lap_pace example)")
     parser.add_argument("--model-metadata", default=none, help="model_metadata.json (action space, sensors, network)")
     parser.add_argument("--hyperparameters", default=none, help="hyperparameters.json")
@@ -23,6 +25,16 @@ def _add_job_options(parser: argparse.ArgumentParser, defaults: bool) -> None:
     parser.add_argument("--seed", type=int, default=0 if defaults else none, help="random seed")
     from laplab.commands.store_option import add_store_option
     add_store_option(parser)
+
+
+def _add_scale_options(parser: argparse.ArgumentParser) -> None:
+    """Rollout workers on Ray and the learner's device (docs/scaleout.md)."""
+    parser.add_argument("--workers", type=int, default=None, metavar="N",
+                        help="rollout workers (Ray actors) sharing each iteration's episodes (default 1: "
+                             "in-process, no Ray; a resumed job may change it)")
+    parser.add_argument("--ray-address", default=None, metavar="ADDR",
+                        help="join the Ray cluster at ADDR (`ray start --head` prints it) instead of a local Ray")
+    parser.add_argument("--device", default="cpu", help="the learner's torch device: cpu (default) or cuda")
 
 
 def add_limit_options(parser: argparse.ArgumentParser, reward: bool = True) -> None:
@@ -62,6 +74,7 @@ def register(subparsers) -> None:
     train.add_argument("--precision", choices=PRECISIONS, default="auto",
                        help="network arithmetic in training (auto: bfloat16 for camera networks on CPUs "
                             "with native bfloat16, else float32)")
+    _add_scale_options(train)
     train.add_argument("--quiet", action="store_true", help="print only the summary")
     train.add_argument("--trust-reward", action="store_true",
                        help="run the reward function of an imported model (--resume); recorded, asked once")
@@ -71,6 +84,7 @@ def register(subparsers) -> None:
     clone.add_argument("source", help="the model to start from (its best checkpoint)")
     clone.add_argument("name", help="name of the new model")
     _add_job_options(clone, defaults=False)
+    _add_scale_options(clone)
     clone.add_argument("--quiet", action="store_true")
     clone.add_argument("--trust-reward", action="store_true",
                        help="run the source's reward function when it came from an imported archive; recorded")
@@ -82,7 +96,10 @@ def _overrides(args: argparse.Namespace) -> dict:
     from laplab.agents.hyperparameters import load_hyperparameters
     from laplab.env.metadata import load_model_metadata
     from laplab.train.config import parse_duration
-    out = {"track": args.track, "reward_path": str(Path(args.reward).resolve()) if args.reward else None,
+    tracks = args.track or []
+    out = {"track": tracks[0] if len(tracks) == 1 else None,
+           "tracks": tuple(tracks) if len(tracks) > 1 else (() if tracks else None),
+           "reward_path": str(Path(args.reward).resolve()) if args.reward else None,
            "max_episodes": args.max_episodes, "seed": args.seed,
            "max_time_s": parse_duration(args.max_time) if args.max_time else None}
     if args.model_metadata:
@@ -114,9 +131,11 @@ class _StopFlag:
             signal.signal(sig, handler)
 
 
-def run_trainer(trainer, console: Console, quiet: bool, reward_timeout: float | None = None) -> int:
+def run_trainer(trainer, console: Console, quiet: bool, reward_timeout: float | None = None,
+                ray_address: str | None = None) -> int:
     """Run ``trainer`` with the progress display, Ctrl-C handling, the reward watchdog and reports
-    to the job's supervisor (when there is one)."""
+    to the job's supervisor (when there is one); with several workers (``trainer.config.workers``) or
+    a ``ray_address``, its episodes are collected by rollout workers on Ray."""
     from laplab.jobs.supervisor import job_limits, report
     from laplab.reward.watchdog import RewardWatchdog, WatchdogLimits
     from laplab.train.progress import ProgressPrinter
@@ -126,14 +145,60 @@ def run_trainer(trainer, console: Console, quiet: bool, reward_timeout: float | 
            **({"iteration": trainer.iteration} if trainer.iteration else {}))
     limits = job_limits()
     watch = WatchdogLimits(reward_timeout or limits.reward_timeout_s, limits.reward_wait_timeout_s)
-    printer = ProgressPrinter(console, trainer, quiet)
-    with _StopFlag() as stop, RewardWatchdog(watch):
-        result = trainer.run(callbacks=(printer, lambda r: report(iteration=r.iteration)),
-                             should_stop=stop.event.is_set)
-    if getattr(trainer, "lock", None) is not None:
-        trainer.lock.release()  # the job is over: the folder is free for the next one
+    collector = None
+    try:
+        collector = _start_workers(trainer, console, ray_address, watch)
+        printer = ProgressPrinter(console, trainer, quiet)
+        with _StopFlag() as stop, RewardWatchdog(watch):
+            result = trainer.run(callbacks=(printer, lambda r: report(iteration=r.iteration)),
+                                 should_stop=stop.event.is_set)
+    finally:
+        if collector is not None:
+            collector.close()
+        if getattr(trainer, "lock", None) is not None:
+            trainer.lock.release()  # the job is over: the folder is free for the next one
     printer.summary(result)
     return 1 if result.error else 0
+
+
+def _start_workers(trainer, console: Console, ray_address: str | None, watch):
+    """Rollout workers on Ray for a job with several workers or a cluster address (else None: the
+    in-process path, Ray is not even imported). Restarts are printed and logged in the model folder."""
+    workers = trainer.config.workers
+    if workers <= 1 and not ray_address:
+        return None
+    import time
+
+    from laplab.cluster.launch import attach_workers
+    log = trainer.folder.root / "logs" / "workers.log"
+
+    def notify(message: str) -> None:
+        console.print(f"[yellow]{message}[/yellow]")
+        log.parent.mkdir(parents=True, exist_ok=True)
+        with open(log, "a") as handle:
+            handle.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {message}\n")
+    console.print(f"starting {workers} rollout worker{'s' if workers > 1 else ''} on "
+                  f"{'the Ray cluster at ' + ray_address if ray_address else 'a local Ray'}")
+    return attach_workers(trainer, workers, ray_address, notify, watch.timeout_s, watch.wait_timeout_s)
+
+
+def _scale(args: argparse.Namespace) -> tuple[int | None, str]:
+    """(--workers, the learner's device), checked, and the cluster reachable, before any folder is written."""
+    from laplab.cluster.launch import resolve_device
+    from laplab.errors import UserError
+    if args.workers is not None and args.workers < 1:
+        raise UserError(f"--workers must be at least 1, got {args.workers}")
+    if args.ray_address:
+        from laplab.cluster.collector import check_reachable
+        check_reachable(args.ray_address)
+    return args.workers, resolve_device(args.device)
+
+
+def _check_workers(config) -> None:
+    """Enough workers for the tracks and not more than the episodes, before a folder is written."""
+    if config.workers > 1 or len(config.training_tracks()) > 1:
+        from laplab.cluster.launch import check_workers
+        check_workers(config, config.workers)
 
 
 def run_train(args: argparse.Namespace) -> int:
@@ -150,25 +215,35 @@ def run_train(args: argparse.Namespace) -> int:
         raise UserError("give either --name (a new model) or --resume NAME, not both")
     if not args.resume and not args.name:
         raise UserError("name the new model with --name NAME (or continue one with --resume NAME)")
+    if args.resume:
+        overrides = _overrides(args)
+        if args.reward:
+            raise UserError("a resumed job keeps its reward function; to train with another one, "
+                            f"`laplab clone {args.resume} NEW --reward FILE`")
+        if overrides["track"] or overrides["tracks"]:
+            raise UserError("a resumed job keeps its tracks; to train on others, "
+                            f"`laplab clone {args.resume} NEW --track ...`")
+    else:
+        values = {k: v for k, v in _overrides(args).items() if v is not None}
+        values["domain_randomization"] = bool(args.domain_randomization)
+        values["precision"] = args.precision
+    workers, device = _scale(args)
     with store_session(args, "train") as store:
         if args.resume:
-            overrides = _overrides(args)
-            if args.reward:
-                raise UserError("a resumed job keeps its reward function; to train with another one, "
-                                f"`laplab clone {args.resume} NEW --reward FILE`")
             listeners = store.resume_job(args.resume) if store else ()
             trainer = resume_training(args.resume, overrides["max_time_s"], overrides["max_episodes"],
-                                      trust_reward=args.trust_reward, listeners=listeners)
+                                      trust_reward=args.trust_reward, workers=workers, device=device,
+                                      listeners=listeners)
             console.print(f"resuming {args.resume} at iteration {trainer.iteration} ({trainer.episodes} episodes)")
         else:
-            values = {k: v for k, v in _overrides(args).items() if v is not None}
-            values["domain_randomization"] = bool(args.domain_randomization)
-            values["precision"] = args.precision
+            values["workers"] = workers or 1
+            config = replace(TrainConfig(), **values)
+            _check_workers(config)
             listeners = store.create_job(args.name) if store else ()
-            trainer = create_training(args.name, replace(TrainConfig(), **values), listeners=listeners)
+            trainer = create_training(args.name, config, listeners=listeners, device=device)
         if store:
             trainer.location = store.remote.url(trainer.folder.name)  # what the summary names
-        return run_trainer(trainer, console, args.quiet, args.reward_timeout)
+        return run_trainer(trainer, console, args.quiet, args.reward_timeout, args.ray_address)
 
 
 def run_clone(args: argparse.Namespace) -> int:
@@ -177,13 +252,16 @@ def run_clone(args: argparse.Namespace) -> int:
     from laplab.commands.store_option import store_session, without_traces
 
     console = Console(highlight=False, soft_wrap=True)
+    workers, device = _scale(args)
     with store_session(args, "clone") as store:
         if store:
             store.pull(args.source, ("best",), without_traces)
-        config, weights = clone_config(args.source, _overrides(args), trust_reward=args.trust_reward)
+        config, weights = clone_config(args.source, {**_overrides(args), "workers": workers},
+                                       trust_reward=args.trust_reward)
+        _check_workers(config)
         listeners = store.create_job(args.name) if store else ()
-        trainer = create_training(args.name, config, init_weights=weights, listeners=listeners)
+        trainer = create_training(args.name, config, init_weights=weights, listeners=listeners, device=device)
         console.print(f"cloned {args.source} -> {args.name}")
         if store:
             trainer.location = store.remote.url(args.name)  # what the summary names
-        return run_trainer(trainer, console, args.quiet, args.reward_timeout)
+        return run_trainer(trainer, console, args.quiet, args.reward_timeout, args.ray_address)

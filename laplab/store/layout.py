@@ -10,6 +10,8 @@
         error.txt                          why training died (a RewardFunctionError message)
         .laplab-job.lock                   the running job's lock (see lock.py)
         training-simtrace/<iteration>-iteration.csv     iterations count from 0
+        <worker>/training-simtrace/<iteration>-iteration.csv   instead, when several rollout
+                                           workers trained it (DRfC's multi-worker layout, 0-based)
         metrics/TrainingMetrics.json
         evaluation-<YYYYMMDDhhmmss>/evaluation-simtrace/0-iteration.csv
         metrics/evaluation/evaluation-<YYYYMMDDhhmmss>.json
@@ -123,6 +125,30 @@ class ModelFolder:
             raise ValueError(f"training iteration must be an int >= 0, got {iteration!r}")
         return self.training_simtrace_dir / f"{iteration}-iteration.csv"
 
+    def worker_training_simtrace_dir(self, worker: int) -> Path:
+        """Training simtrace folder of rollout worker ``worker`` (deepracer-for-cloud's layout with
+        several workers, which deepracer-utils reads as ``DRFC_MODEL_MULTIPLE_WORKERS``)."""
+        if isinstance(worker, bool) or not isinstance(worker, int) or worker < 0:
+            raise ValueError(f"worker must be an int >= 0, got {worker!r}")
+        return self.root / str(worker) / "training-simtrace"
+
+    def worker_training_simtrace(self, worker: int, iteration: int) -> Path:
+        return self.worker_training_simtrace_dir(worker) / self.training_simtrace(iteration).name
+
+    def simtrace_workers(self) -> list[int]:
+        """Workers with a ``<worker>/training-simtrace/`` folder, ascending ([] in the single-worker layout)."""
+        if not self.root.is_dir():
+            return []
+        return sorted(int(p.name) for p in self.root.iterdir()
+                      if p.name.isdigit() and (p / "training-simtrace").is_dir())
+
+    def training_simtrace_files(self, iteration: int) -> list[Path]:
+        """Every existing simtrace file of training iteration ``iteration`` (0-based): the
+        single-worker file and each worker's."""
+        paths = [self.training_simtrace(iteration)]
+        paths += [self.worker_training_simtrace(w, iteration) for w in self.simtrace_workers()]
+        return [p for p in paths if p.is_file()]
+
     def evaluation_dir(self, stamp: str) -> Path:
         return self.root / f"evaluation-{_check_stamp(stamp)}"
 
@@ -162,11 +188,14 @@ class ModelFolder:
             return stamp
 
     def list_training_iterations(self) -> list[int]:
-        """Iterations that have a training simtrace file, ascending."""
-        if not self.training_simtrace_dir.is_dir():
-            return []
-        matches = (_ITERATION_FILE_PATTERN.fullmatch(p.name) for p in self.training_simtrace_dir.iterdir())
-        return sorted(int(m.group(1)) for m in matches if m is not None)
+        """Iterations that have a training simtrace file (of any worker), ascending."""
+        folders = [self.training_simtrace_dir] + [self.worker_training_simtrace_dir(w) for w in self.simtrace_workers()]
+        found: set[int] = set()
+        for folder in folders:
+            if folder.is_dir():
+                matches = (_ITERATION_FILE_PATTERN.fullmatch(p.name) for p in folder.iterdir())
+                found.update(int(m.group(1)) for m in matches if m is not None)
+        return sorted(found)
 
     def list_evaluations(self) -> list[str]:
         """Stamps of evaluations with a folder or a metrics file, oldest first."""

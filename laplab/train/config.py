@@ -42,6 +42,12 @@ class TrainConfig:
     - ``precision``: the networks' arithmetic in training: ``float32``, ``bfloat16`` (mixed
       precision: trunks compute in bfloat16, weights and optimizer stay float32) or ``auto``
       (bfloat16 for camera networks on CPUs that multiply bfloat16 natively, ~2x faster updates).
+    - ``tracks``: the training tracks of a multi-track job (deepracer-for-cloud's
+      ``DR_TRAIN_MULTI_CONFIG``), each ``name`` or ``name@reversed``; rollout worker i drives
+      ``tracks[i % len(tracks)]`` and evaluation runs on every one. Empty: the one ``track`` /
+      ``reverse``. When given, ``track`` / ``reverse`` are the first of them.
+    - ``workers``: rollout workers (``1``: in-process collection, no Ray; more: Ray actors, see
+      :mod:`laplab.cluster`); the last session's count (``--resume --workers N`` changes it).
     """
 
     track: str = DEFAULT_TRACK
@@ -58,6 +64,8 @@ class TrainConfig:
     domain_randomization: bool = False
     num_threads: int | None = None
     precision: str = "auto"
+    tracks: tuple[str, ...] = ()
+    workers: int = 1
     version: int = CONFIG_VERSION
 
     def __post_init__(self) -> None:
@@ -69,6 +77,15 @@ class TrainConfig:
             raise ConfigError(f"eval episodes must be within 1..20, got {self.eval_episodes!r}")
         if self.precision not in PRECISIONS:
             raise ConfigError(f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or not 1 <= self.workers <= 1024:
+            raise ConfigError(f"workers must be an integer within 1..1024, got {self.workers!r}")
+        if isinstance(self.tracks, str) or not all(isinstance(t, str) for t in self.tracks):
+            raise ConfigError(f"tracks must be a list of track names, got {self.tracks!r}")
+        object.__setattr__(self, "tracks", tuple(self.tracks))
+        if self.tracks:
+            first, reverse = parse_track_spec(self.tracks[0])
+            object.__setattr__(self, "track", first)
+            object.__setattr__(self, "reverse", reverse)
         if isinstance(self.model_metadata, dict):  # a model_metadata.json object: validated here
             object.__setattr__(self, "model_metadata", metadata_from_dict(self.model_metadata, "model_metadata"))
         elif not isinstance(self.model_metadata, ModelMetadata):
@@ -97,6 +114,12 @@ class TrainConfig:
     def episode_limit(self) -> int:
         return self.max_episodes if self.max_episodes is not None else self.hyper().term_cond_max_episodes
 
+    def training_tracks(self) -> list[tuple[str, bool]]:
+        """(track, reverse) of every training track (one unless this is a multi-track job)."""
+        if not self.tracks:
+            return [(self.track, self.reverse)]
+        return [parse_track_spec(spec) for spec in self.tracks]
+
     def episode_params(self) -> EpisodeParams:
         return EpisodeParams(reverse=self.reverse, alternate_direction=self.alternate_direction)
 
@@ -104,7 +127,8 @@ class TrainConfig:
         """The config with every value written out (laplab.json: a resumed job keeps its
         hyperparameters even if laplab's defaults change)."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}
-        return {**values, "model_metadata": self.model_metadata.to_dict(), "hyperparameters": self.hyper().to_dict()}
+        return {**values, "tracks": list(self.tracks), "model_metadata": self.model_metadata.to_dict(),
+                "hyperparameters": self.hyper().to_dict()}
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "laplab.json") -> "TrainConfig":
@@ -127,6 +151,20 @@ def default_hyperparameters(metadata: ModelMetadata) -> Hyperparameters:
     if metadata.camera is not None:
         return Hyperparameters(num_epochs=5)
     return Hyperparameters()
+
+
+REVERSED_SUFFIX = "@reversed"
+
+
+def parse_track_spec(spec: str) -> tuple[str, bool]:
+    """``"name"`` -> (name, False); ``"name@reversed"`` -> (name, True) (``--track`` of a multi-track job)."""
+    text = str(spec).strip()
+    reverse = text.endswith(REVERSED_SUFFIX)
+    name = text[: -len(REVERSED_SUFFIX)] if reverse else text
+    if not name or "@" in name:
+        raise ConfigError(f"cannot read the track {spec!r}: write a track name or path, optionally followed "
+                          f"by {REVERSED_SUFFIX} (e.g. reInvent2019_track{REVERSED_SUFFIX})")
+    return name, reverse
 
 
 _DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(s|sec|m|min|h|hr)?\s*$", re.IGNORECASE)

@@ -38,6 +38,8 @@ class IterationReport:
     # wall seconds of this iteration spent collecting episodes, learning, on evaluation laps and on
     # handing the results to the listeners (writing logs and the checkpoint)
     seconds: dict[str, float] = field(default_factory=dict)
+    # mean progress of the evaluation laps per track of a multi-track job ({} with one track)
+    eval_progress_by_track: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

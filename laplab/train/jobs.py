@@ -45,7 +45,7 @@ def load_and_validate_reward(config: TrainConfig, track: Track, path: Path | Non
 
 
 def create_training(name: str, config: TrainConfig, init_weights: dict | None = None,
-                    listeners: tuple = ()) -> Trainer:
+                    listeners: tuple = (), device: str = "cpu") -> Trainer:
     """Validate everything, create the model folder and return a :class:`Trainer` for it.
 
     Refuses an existing name (a model is immutable). Nothing is written before validation passes.
@@ -80,7 +80,7 @@ def create_training(name: str, config: TrainConfig, init_weights: dict | None = 
         shutil.rmtree(staging.root, ignore_errors=True)
         raise
     lock.root = folder.root
-    return _start(folder, config, reward_fn, track, lock, init_weights, listeners)
+    return _start(folder, config, reward_fn, track, lock, init_weights, listeners, device)
 
 
 def create_training_in_place(name: str, config: TrainConfig, init_weights: dict | None = None) -> Trainer:
@@ -106,9 +106,9 @@ def create_training_in_place(name: str, config: TrainConfig, init_weights: dict 
 
 
 def _start(folder: ModelFolder, config: TrainConfig, reward_fn, track: Track, lock: ModelLock,
-           init_weights: dict | None, listeners: tuple = ()) -> Trainer:
+           init_weights: dict | None, listeners: tuple = (), device: str = "cpu") -> Trainer:
     try:
-        trainer = _attach(Trainer(config, reward_fn, track), folder, listeners)
+        trainer = _attach(Trainer(config, reward_fn, track, device=device), folder, listeners)
         if init_weights is not None:
             load_weights_only(trainer.learner, init_weights)
         trainer.save_initial_checkpoint()
@@ -122,7 +122,7 @@ def _start(folder: ModelFolder, config: TrainConfig, reward_fn, track: Track, lo
 def _attach(trainer: Trainer, folder: ModelFolder, listeners: tuple = ()) -> Trainer:
     """Subscribe the model folder's recorder (it writes what the trainer reports), then ``listeners``."""
     trainer.folder = folder
-    trainer.subscribe(ModelFolderRecorder(folder, trainer.iteration, trainer.episodes))
+    trainer.subscribe(ModelFolderRecorder(folder, trainer.iteration, trainer.episodes, trainer.config.workers))
     trainer.subscribe(RobomakerLogRecorder(folder, trainer.config))
     for listener in listeners:
         trainer.subscribe(listener)
@@ -138,11 +138,13 @@ def take_lock(folder, what: str = "trained") -> ModelLock:
 
 
 def resume_training(name: str, max_time_s: float | None = None, max_episodes: int | None = None,
-                    trust_reward: bool = False, listeners: tuple = ()) -> Trainer:
+                    trust_reward: bool = False, workers: int | None = None, device: str = "cpu",
+                    listeners: tuple = ()) -> Trainer:
     """A Trainer that continues ``name`` from its last checkpoint (iteration count continues).
 
     ``max_time_s`` (a new budget for this session) and ``max_episodes`` (a new total) override the
-    stored stop conditions. An imported model's reward function runs only once trusted
+    stored stop conditions; ``workers`` (rollout workers, any count) overrides the stored one and is
+    recorded in laplab.json. An imported model's reward function runs only once trusted
     (``trust_reward``, recorded: see :mod:`laplab.train.archive`)."""
     folder = model_folder(name)
     if not folder.exists():
@@ -155,6 +157,9 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
             config = replace(config, max_time_s=max_time_s)
         if max_episodes is not None:
             config = replace(config, max_episodes=max_episodes)
+        if workers is not None and workers != config.workers:
+            config = replace(config, workers=workers)
+            folder.write_laplab_config(config.to_dict())
         track = job_track(config)
         reward_fn = load_and_validate_reward(config, track, folder.reward_function)
         if CheckpointStore(folder).names():
@@ -163,7 +168,7 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
             state = None
         if folder.error_file.exists():
             folder.error_file.unlink()
-        trainer = _attach(Trainer(config, reward_fn, track, resume_from=state), folder, listeners)
+        trainer = _attach(Trainer(config, reward_fn, track, resume_from=state, device=device), folder, listeners)
         if state is None:
             trainer.save_initial_checkpoint()
     except BaseException:

@@ -23,11 +23,16 @@ from laplab.train.events import CheckpointReady, IterationEpisodes, IterationRep
 class ModelFolderRecorder:
     """Writes a job's events into ``folder``. ``iteration`` and ``episodes``: where the job starts
     (a resumed job: its checkpoint's), so records written after that checkpoint by a job that was
-    killed are dropped and rewritten."""
+    killed are dropped and rewritten. ``workers`` > 1 (rollout workers on Ray) switches the folder to
+    deepracer-for-cloud's multi-worker layout: each worker's training simtrace under
+    ``<worker>/training-simtrace/``; a folder once in that layout stays in it."""
 
-    def __init__(self, folder: ModelFolder, iteration: int = 0, episodes: int = 0):
+    def __init__(self, folder: ModelFolder, iteration: int = 0, episodes: int = 0, workers: int = 1):
         self.folder = folder
         self.checkpoints = CheckpointStore(folder)
+        self.per_worker = workers > 1 or bool(folder.simtrace_workers())
+        if self.per_worker:
+            _use_worker_layout(folder)
         if iteration > 0 or episodes > 0:
             self._drop_records_after(iteration, episodes)
         self.metrics = TrainingMetricsWriter(folder.training_metrics)
@@ -43,7 +48,8 @@ class ModelFolderRecorder:
         iteration the checkpoint does not have: remove them so the resumed job rewrites them."""
         for k in self.folder.list_training_iterations():
             if k >= iteration:
-                self.folder.training_simtrace(k).unlink(missing_ok=True)
+                for path in self.folder.training_simtrace_files(k):
+                    path.unlink()
         path = self.folder.training_metrics
         if path.exists():
             data = read_json(path)
@@ -60,12 +66,28 @@ class ModelFolderRecorder:
 
     def on_episodes(self, episodes: IterationEpisodes) -> None:
         # deepracer-for-cloud numbers simtrace files from 0: iteration k (1-based) -> (k-1)-iteration.csv
-        with SimtraceWriter(self.folder.training_simtrace(episodes.iteration - 1), fsync=False) as writer:
-            writer.write_rows(episodes.training_trace())
+        if self.per_worker:
+            self._write_worker_simtraces(episodes)
+        else:
+            with SimtraceWriter(self.folder.training_simtrace(episodes.iteration - 1), fsync=False) as writer:
+                writer.write_rows(episodes.training_trace())
         for append, b in ((self.metrics.append_training, episodes.training),
                           (self.metrics.append_evaluation, episodes.evaluation)):
             append(reward_score=b.total_reward, start_time=np.zeros(len(b.status)), metric_time=b.duration,
                    completion_percentage=b.progress, episode_status=b.status_names())
+
+    def _write_worker_simtraces(self, episodes: IterationEpisodes) -> None:
+        trace = episodes.training_trace()
+        batch = episodes.training
+        owner = getattr(batch, "worker", None)
+        local_episode = np.asarray(batch.trace["episode"])
+        row_worker = np.zeros(len(local_episode), np.int64) if owner is None else np.asarray(owner)[local_episode]
+        for worker in np.unique(row_worker).tolist():
+            keep = row_worker == worker
+            path = self.folder.worker_training_simtrace(int(worker), episodes.iteration - 1)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with SimtraceWriter(path, fsync=False) as writer:
+                writer.write_rows({k: np.asarray(v)[keep] for k, v in trace.items()})
 
     def on_checkpoint(self, checkpoint: CheckpointReady) -> None:
         self.checkpoints.save(checkpoint.write, iteration=checkpoint.iteration, steps=checkpoint.env_steps,
@@ -77,6 +99,19 @@ class ModelFolderRecorder:
 
     def on_error(self, message: str) -> None:
         self.folder.write_error(message)
+
+
+def _use_worker_layout(folder: ModelFolder) -> None:
+    """Move single-worker simtrace files (a job that ran with one worker before) to worker 0's
+    folder and remove the top-level ``training-simtrace/``: deepracer-utils takes a folder that has
+    one for a single-worker model and would not see the workers' files."""
+    top = folder.training_simtrace_dir
+    worker_zero = folder.worker_training_simtrace_dir(0)
+    worker_zero.mkdir(parents=True, exist_ok=True)
+    if top.is_dir():
+        for path in top.iterdir():
+            path.replace(worker_zero / path.name)
+        top.rmdir()
 
 
 class RobomakerLogRecorder:

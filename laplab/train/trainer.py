@@ -47,10 +47,10 @@ class TrainResult:
 Callback = Callable[[IterationReport], None]
 
 
-def build_learner(config: TrainConfig, seed: int, precision: str | None = None) -> Learner:
-    """The learner of a training job (its model spec, hyperparameters, threads and precision)."""
+def build_learner(config: TrainConfig, seed: int, precision: str | None = None, device: str = "cpu") -> Learner:
+    """The learner of a training job (its model spec, hyperparameters, threads, precision and torch device)."""
     return build_model_learner(config.spec, config.hyper(), seed=seed, num_threads=config.num_threads,
-                               precision=precision or config.precision)
+                               precision=precision or config.precision, device=device)
 
 
 def checkpoint_writer(learner: Learner, iteration: int, env_steps: int, episodes: int, best_lap_time: float | None):
@@ -76,9 +76,16 @@ class Trainer:
     """A training job: ``config`` on the loaded ``track`` with ``reward_fn``; ``resume_from`` is a
     checkpoint (:func:`load_checkpoint`) to continue from. Made by :mod:`laplab.train.jobs`, which
     subscribes the model folder's recorder; ``folder`` names that folder for displays (None: no folder).
+    ``device``: the learner's torch device (``cuda`` for a GPU; collection stays on the CPU).
+
+    Collection and evaluation are pluggable: ``collector`` (None: in-process) is an object whose
+    ``collect(trainer, should_abort) -> EpisodeBatch`` drives the iteration's episodes elsewhere (Ray
+    rollout workers: :mod:`laplab.cluster`); ``evaluator`` (None: the job's track) has
+    ``evaluate(policy) -> EpisodeBatch``.
     """
 
-    def __init__(self, config: TrainConfig, reward_fn, track: Track, resume_from: dict | None = None):
+    def __init__(self, config: TrainConfig, reward_fn, track: Track, resume_from: dict | None = None,
+                 device: str = "cpu"):
         self.config, self.reward_fn, self.track = config, reward_fn, track
         self.spec, self.hp = config.spec, config.hyper()
         self.metadata = self.spec.metadata
@@ -96,7 +103,9 @@ class Trainer:
         self.eval_observations = ObservationBuilder(self.eval_sim, self.spec, seed=config.seed + 1)
         self.stepper = EpisodeStepper(self.sim, self.spec.action_space, reward_fn)
         self.eval_stepper = EpisodeStepper(self.eval_sim, self.spec.action_space, reward_fn)
-        self.learner = build_learner(config, config.seed)
+        self.learner = build_learner(config, config.seed, device=device)
+        self.collector = None
+        self.evaluator = None
         self.iteration, self.env_steps, self.episodes, self.best_lap = 0, 0, 0, None
         if resume_from is not None:
             self.learner.load_state_dict(resume_from["learner"])
@@ -138,10 +147,14 @@ class Trainer:
         return act
 
     def _collect(self, should_abort) -> EpisodeBatch:
+        if self.collector is not None:
+            return self.collector.collect(self, should_abort)
         return collect_episodes(self.stepper, self.observations, self._policy(False), self.learner.values,
                                 should_abort=should_abort, on_poses=self._poses_hook())
 
     def _evaluate(self) -> EpisodeBatch:
+        if self.evaluator is not None:
+            return self.evaluator.evaluate(self._policy(True))
         starts = np.arange(self.config.eval_episodes) / self.config.eval_episodes
         return collect_episodes(self.eval_stepper, self.eval_observations, self._policy(True),
                                 keep_observations=False, ndist=starts)
@@ -219,7 +232,7 @@ class Trainer:
                 best_lap_time=self.best_lap, eval_lap_time=float(eval_laps.mean()) if eval_laps.size else None,
                 steps_per_second=(batch.env_steps + evaluation.env_steps) / max(wall, 1e-9),
                 elapsed_s=elapsed, time_left_s=max(cfg.max_time_s - elapsed, 0.0), losses=losses,
-                seconds=seconds)
+                seconds=seconds, eval_progress_by_track=_progress_by_track(evaluation))
             self._emit("on_iteration", report)
             for callback in callbacks:
                 callback(report)
@@ -228,3 +241,12 @@ class Trainer:
                 break
         return TrainResult(self.iteration, self.episodes, self.env_steps, time.perf_counter() - started,
                            reason, self.best_lap, error)
+
+
+def _progress_by_track(evaluation: EpisodeBatch) -> dict[str, float]:
+    """Mean evaluation progress per track of a multi-track job (its batch tags episodes by track)."""
+    labels = getattr(evaluation, "track", None)
+    if labels is None:
+        return {}
+    labels = np.asarray(labels)
+    return {str(t): float(evaluation.progress[labels == t].mean()) for t in dict.fromkeys(labels.tolist())}

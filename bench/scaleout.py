@@ -1,0 +1,95 @@
+"""Rollout workers on Ray against in-process collection: env steps per second of the collection step.
+
+For each sensor (STATE, FRONT_FACING_CAMERA) it times the trainer's collection of an iteration
+(``num_episodes_between_training`` episodes, the same total cars everywhere) with the same, untrained
+weights (no learning between iterations, so every variant drives the same policy):
+
+- ``in-process``: today's path (one batched simulator in the learner's process);
+- ``ray x1``: one rollout worker on Ray (the overhead: weights through the object store, episodes
+  back, the merge);
+- ``ray xN``: N workers sharing the cars (scaling; on a 2-core machine only 1 -> 2 means anything).
+
+One warm-up iteration per variant is not timed (process start, JIT compilation). Prints env steps/s,
+the Ray x1 / in-process ratio and the parallel efficiency (steps/s of N workers / (N x steps/s of 1)).
+
+Usage:
+  python bench/scaleout.py [--sensors STATE FRONT_FACING_CAMERA] [--workers 1 2] [--iterations 3]
+                           [--episodes 20] [--ray-address ADDR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import tempfile
+import time
+from dataclasses import replace
+
+
+def make_trainer(name: str, sensor: str, episodes: int, workers: int):
+    from laplab.env.metadata import ModelMetadata
+    from laplab.train.config import TrainConfig
+    from laplab.train.jobs import create_training
+
+    metadata = replace(ModelMetadata(), sensors=(sensor,)).to_dict()
+    base = replace(TrainConfig(), model_metadata=metadata)
+    hyper = {**base.hyper().to_dict(), "num_episodes_between_training": episodes}
+    return create_training(name, replace(base, hyperparameters=hyper, workers=workers))
+
+
+def steps_per_second(trainer, iterations: int) -> tuple[float, float]:
+    """(env steps per wall second of the collection step, the share of that wall time the slowest
+    worker spent driving: the rest is Ray's overhead, broadcast, transfer and merge)."""
+    trainer._collect(lambda: False)  # warm-up: JIT, first frames
+    steps, driving, started = 0, 0.0, time.perf_counter()
+    for _ in range(iterations):
+        batch = trainer._collect(lambda: False)
+        steps += batch.env_steps
+        driving += batch.wall_seconds
+    wall = time.perf_counter() - started
+    return steps / wall, driving / wall
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sensors", nargs="+", default=["STATE", "FRONT_FACING_CAMERA"])
+    parser.add_argument("--workers", nargs="+", type=int, default=[1, 2])
+    parser.add_argument("--iterations", type=int, default=3)
+    parser.add_argument("--episodes", type=int, default=20, help="episodes (cars) per iteration, all variants")
+    parser.add_argument("--ray-address", default=None)
+    args = parser.parse_args()
+    os.environ.setdefault("LAPLAB_HOME", tempfile.mkdtemp(prefix="laplab-scaleout-"))
+
+    import ray
+
+    from laplab.cluster.collector import connect_ray
+    from laplab.cluster.launch import attach_workers
+
+    started_ray = connect_ray(args.ray_address, max(args.workers))
+    print(f"cpus {os.cpu_count()}, ray cluster cpus {ray.cluster_resources().get('CPU')}, "
+          f"{args.episodes} cars per iteration, {args.iterations} timed iterations", flush=True)
+    for sensor in args.sensors:
+        figures = {}
+        trainer = make_trainer(f"inproc-{sensor.lower().replace('_', '-')}", sensor, args.episodes, 1)
+        figures["in-process"], share = steps_per_second(trainer, args.iterations)
+        print(f"{sensor:20s} in-process  {figures['in-process']:9.1f} env steps/s (driving {share:.0%})", flush=True)
+        for workers in args.workers:
+            trainer = make_trainer(f"ray{workers}-{sensor.lower().replace('_', '-')}", sensor, args.episodes, workers)
+            with attach_workers(trainer, workers, args.ray_address):
+                figures[workers], share = steps_per_second(trainer, args.iterations)
+            print(f"{sensor:20s} ray x{workers:<5d} {figures[workers]:9.1f} env steps/s (driving {share:.0%})",
+                  flush=True)
+        if 1 in figures:
+            print(f"{sensor:20s} overhead: ray x1 / in-process = {figures[1] / figures['in-process']:.2f}")
+            for workers in args.workers:
+                if workers > 1:
+                    print(f"{sensor:20s} scaling 1 -> {workers}: {figures[workers] / figures[1]:.2f}x, "
+                          f"parallel efficiency {figures[workers] / (workers * figures[1]):.0%}")
+    if started_ray:
+        ray.shutdown()
+
+
+if __name__ == "__main__":
+    logging.getLogger("ray").setLevel(logging.ERROR)
+    main()

@@ -1,0 +1,217 @@
+"""Collection on Ray: N rollout workers (actors) and the learner in the driver.
+
+Each iteration the learner puts its policy weights in Ray's object store once (``ray.put``), tagged
+with the policy version (the number of updates the weights have had: the trainer's iteration); the
+workers drive their share of ``num_episodes_between_training`` episodes with exactly those weights
+and return their episodes tagged with that version. The learner merges them and refuses any episode
+of another version (PPO stays on-policy; SAC is kept synchronous the same way).
+
+Faults: a worker whose process dies (killed, out of memory, a reward function that calls
+``os._exit``) is replaced by a new actor (same share, same track, a new seed) and its share of the
+iteration is collected again; every restart is announced to ``notify``. A worker that dies
+:data:`MAX_RESTARTS_PER_ITERATION` times in one iteration ends the job (the last checkpoint stays).
+A reward function that *raises* is no fault of the worker: it ends the job with the usual
+RewardFunctionError paragraph.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+from typing import Callable, Sequence
+
+import numpy as np
+
+from laplab.cluster.batches import TaggedEpisodeBatch, merge_batches
+from laplab.cluster.worker import (RolloutWorker, RolloutWorkerError, WorkerResult, WorkerSetup, policy_weights,
+                                   worker_seed)
+from laplab.train.collect import CollectionAborted
+from laplab.train.errors import JobError
+
+MAX_RESTARTS_PER_ITERATION = 3
+_POLL_S = 0.2
+
+
+class WorkerFailure(JobError):
+    """A rollout worker kept dying; the job stops with its last checkpoint."""
+
+
+class StalePolicyError(RuntimeError):
+    """Episodes acted with another policy version than the one being trained (a bug if ever raised)."""
+
+
+def require_policy_version(batch: TaggedEpisodeBatch, version: int) -> None:
+    """Refuse a batch unless every episode (every transition of it) was acted with ``version``."""
+    versions = np.asarray(batch.policy_version)
+    if versions.shape != batch.status.shape or (versions != version).any():
+        stale = sorted(set(versions.tolist()) - {version})
+        raise StalePolicyError(f"a learner update of policy version {version} got episodes of version(s) {stale}")
+
+
+def check_reachable(address: str, timeout_s: float = 3.0) -> None:
+    """A clear :class:`JobError` when nothing listens at ``address`` (``host:port`` or
+    ``ray://host:port``); Ray itself would wait for minutes. ``auto`` is left to Ray."""
+    if address == "auto":
+        return
+    target = address.split("://", 1)[-1]
+    host, _, port = target.rpartition(":")
+    if not host or not port.isdigit():
+        raise JobError(f"--ray-address {address!r}: write HOST:PORT of the cluster's head node "
+                       "(the address `ray start --head` prints, e.g. 192.168.1.10:6379) or auto")
+    try:
+        with socket.create_connection((host, int(port)), timeout=timeout_s):
+            pass
+    except OSError as exc:
+        raise JobError(f"cannot reach the Ray cluster at {address} ({exc.strerror or exc}); start its head "
+                       "node with `ray start --head` on that machine (or train without --ray-address to "
+                       "use a local Ray).") from None
+
+
+def connect_ray(address: str | None, workers: int) -> bool:
+    """Join the cluster at ``address``, or start a quiet local Ray (no dashboard) with at least one
+    CPU per worker. Returns True when this call started (and so must stop) Ray."""
+    try:
+        import ray
+    except ImportError:
+        raise JobError("rollout workers (--workers above 1, or --ray-address) run on Ray, which is not installed: "
+                       "pip install -e \".[train,cluster]\" (ray[default]==2.60.0), or train with --workers 1") from None
+    if ray.is_initialized():
+        return False
+    quiet = {"logging_level": logging.ERROR, "log_to_driver": False, "configure_logging": True}
+    if address:
+        check_reachable(address)
+    try:
+        if address:
+            ray.init(address=address, **quiet)
+        else:
+            ray.init(num_cpus=max(workers + 1, os.cpu_count() or 1), include_dashboard=False, **quiet)
+    except Exception as exc:  # Ray's own start-up errors: a paragraph, not a traceback
+        where = f"join the Ray cluster at {address}" if address else "start a local Ray"
+        raise JobError(f"could not {where}: {_reason(exc)} (an overloaded machine can make Ray's start time "
+                       "out; try again, or use fewer --workers)") from None
+    return True
+
+
+def _is_worker_death(exc: BaseException) -> bool:
+    import ray.exceptions as rex
+    dead = (rex.RayActorError, rex.WorkerCrashedError, rex.ObjectLostError, rex.OutOfMemoryError)
+    return isinstance(exc, dead)
+
+
+class RayCollector:
+    """The trainer's collection step on Ray workers (``trainer.collector``). ``setups``: one
+    :class:`WorkerSetup` per worker; ``notify(message)`` hears about restarts."""
+
+    def __init__(self, setups: Sequence[WorkerSetup], notify: Callable[[str], None] = lambda message: None,
+                 ray_address: str | None = None):
+        self.setups = list(setups)
+        self.notify = notify
+        self.ray_address = ray_address
+        self.actors: list = []
+        self.restarts = [0] * len(self.setups)  # over the job, per worker
+        self._started_ray = False
+        self._actor_class = None
+
+    # -- lifetime --------------------------------------------------------------------------------
+
+    def start(self) -> "RayCollector":
+        self._started_ray = connect_ray(self.ray_address, len(self.setups))  # first: a clear error without Ray
+        import ray
+        self._actor_class = ray.remote(num_cpus=1, max_restarts=0)(RolloutWorker)
+        self.actors = [self._actor_class.remote(setup) for setup in self.setups]
+        try:
+            ray.get([actor.ping.remote() for actor in self.actors])  # built: their simulators are up
+        except Exception as exc:
+            self.close()
+            raise JobError(f"the rollout workers could not start: {_reason(exc)}") from None
+        return self
+
+    def close(self) -> None:
+        import ray
+        for actor in self.actors:
+            try:
+                ray.kill(actor, no_restart=True)
+            except Exception:  # already gone
+                pass
+        self.actors = []
+        if self._started_ray and ray.is_initialized():
+            ray.shutdown()
+        self._started_ray = False
+
+    def __enter__(self) -> "RayCollector":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def pids(self) -> list[int]:
+        """The process ids of the workers (for tests and displays)."""
+        import ray
+        return ray.get([actor.ping.remote() for actor in self.actors])
+
+    def _replace(self, index: int) -> None:
+        import ray
+        try:
+            ray.kill(self.actors[index], no_restart=True)
+        except Exception:
+            pass
+        self.restarts[index] += 1
+        setup = self.setups[index]
+        from dataclasses import replace
+        setup = replace(setup, seed=worker_seed(setup.seed, index, self.restarts[index]))
+        self.actors[index] = self._actor_class.remote(setup)
+
+    # -- one iteration ---------------------------------------------------------------------------
+
+    def collect(self, trainer, should_abort: Callable[[], bool] = lambda: False) -> TaggedEpisodeBatch:
+        """Every worker's share of the iteration with the trainer's current weights (version
+        ``trainer.iteration``), merged; raises CollectionAborted, RolloutWorkerError (the reward
+        function raised) or WorkerFailure."""
+        import ray
+        learner, version = trainer.learner, int(trainer.iteration)
+        policy = ray.put(policy_weights(learner))  # once: every worker reads the same object
+        episodes_before = int(trainer.episodes)
+
+        def submit(index: int):
+            return self.actors[index].collect.remote(policy, version, episodes_before)
+
+        pending = {submit(i): i for i in range(len(self.actors))}
+        results: dict[int, WorkerResult] = {}
+        deaths = [0] * len(self.actors)
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=_POLL_S)
+            if should_abort():
+                raise CollectionAborted
+            for ref in ready:
+                index = pending.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except Exception as exc:
+                    if not _is_worker_death(exc):
+                        raise
+                    deaths[index] += 1
+                    if deaths[index] > MAX_RESTARTS_PER_ITERATION:
+                        raise WorkerFailure(
+                            f"rollout worker {index} ({self.setups[index].track_label}) died "
+                            f"{deaths[index]} times in iteration {version + 1}; the job stops with its last "
+                            f"checkpoint. Last cause: {_reason(exc)}") from None
+                    self.notify(f"rollout worker {index} died in iteration {version + 1} ({_reason(exc)}); "
+                                f"restarted it, collecting its {self.setups[index].num_cars} episodes again")
+                    self._replace(index)
+                    pending[submit(index)] = index
+                    continue
+                if result.reward_error is not None:
+                    raise RolloutWorkerError(result.reward_error)
+                results[index] = result
+        batch = merge_batches([results[i].batch for i in range(len(self.actors))])
+        require_policy_version(batch, version)
+        if hasattr(learner, "env_steps"):  # the epsilon schedule advances as the workers acted
+            learner.env_steps += sum(r.acted_steps for r in results.values())
+        return batch
+
+
+def _reason(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    first = next((line for line in text if line.strip()), type(exc).__name__)
+    return f"{type(exc).__name__}: {first[:300]}"

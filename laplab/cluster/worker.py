@@ -1,0 +1,157 @@
+"""A rollout worker: one batched simulator that drives its share of an iteration's episodes.
+
+:class:`RolloutWorker` is a plain class (a Ray actor in :mod:`laplab.cluster.collector`, which runs
+it in its own process). It builds its own track, :class:`~laplab.sim.simulator.Simulator`,
+:class:`~laplab.env.observations.ObservationBuilder` and :class:`~laplab.env.step.EpisodeStepper`,
+compiles the reward function from its source text itself (the reward is untrusted code: it runs in
+the worker's process, under the reward watchdog's time limit when the worker runs in its process's
+main thread), and acts with a CPU copy of the learner's policy network, loaded from the weights the
+learner broadcasts each iteration.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from laplab.reward.errors import RewardFunctionError
+
+
+@dataclass(frozen=True)
+class WorkerSetup:
+    """What one worker needs: ``config`` (a TrainConfig as a dict), ``index`` (0-based), its
+    ``track`` / ``reverse``, ``num_cars`` (its episodes per iteration), ``start_offset`` (how many
+    episodes of the iteration come before its own, so the round-robin starts are consecutive across
+    workers), ``seed``, the reward function's ``reward_source`` text and ``reward_path`` (named in
+    errors), the watchdog's limits (s), and the torch threads of a camera network (a vector network
+    acts fastest on one)."""
+
+    config: dict
+    index: int
+    track: str
+    reverse: bool
+    num_cars: int
+    start_offset: int
+    seed: int
+    reward_source: str
+    reward_path: str
+    reward_timeout_s: float = 5.0
+    reward_wait_timeout_s: float = 60.0
+    camera_threads: int = 1
+
+    @property
+    def track_label(self) -> str:
+        return f"{self.track}@reversed" if self.reverse else self.track
+
+
+@dataclass
+class WorkerResult:
+    """One worker's share of an iteration: ``batch`` (a TaggedEpisodeBatch) acted with
+    ``policy_version``; ``acted_steps`` (exploring policy calls, for the epsilon schedule); or
+    ``reward_error`` (the RewardFunctionError's paragraph) when the reward function failed."""
+
+    index: int
+    policy_version: int
+    batch: Any = None
+    acted_steps: int = 0
+    reward_error: str | None = None
+    pid: int = 0
+
+
+class RolloutWorkerError(RewardFunctionError):
+    """A worker's RewardFunctionError, carried back as its message (the learner shows it as is)."""
+
+    def __init__(self, message: str):
+        super().__init__(message)
+        self.message = message
+
+    def __str__(self) -> str:
+        return self.message
+
+
+def policy_weights(learner) -> dict:
+    """What a worker needs to act like ``learner``: its policy network's weights (on the CPU) and
+    its exploration schedule's position."""
+    weights = {k: v.detach().cpu() for k, v in learner.policy_network.state_dict().items()}
+    return {"algorithm": learner.algorithm, "weights": weights, "env_steps": int(getattr(learner, "env_steps", 0))}
+
+
+class RolloutWorker:
+    """Collects ``setup.num_cars`` episodes per call of :meth:`collect` (see the module docstring)."""
+
+    def __init__(self, setup: WorkerSetup):
+        from laplab.env.observations import ObservationBuilder
+        from laplab.env.step import EpisodeStepper
+        from laplab.reward.loader import _compile_reward  # source text, errors naming the user's file
+        from laplab.sim.simulator import Simulator
+        from laplab.track.registry import load_track
+        from laplab.train.config import TrainConfig
+        from laplab.train.trainer import build_learner
+        from laplab.vehicle.params import DEEPRACER, vehicle_preset
+
+        self.setup = setup
+        config = TrainConfig.from_dict(setup.config)
+        self.config = config
+        track = load_track(setup.track)
+        params = config.episode_params()
+        params = replace(params, reverse=setup.reverse,
+                         start_ndist=(params.start_ndist + params.round_robin_advance * setup.start_offset) % 1.0)
+        self.sim = Simulator(track, setup.num_cars, vehicle_preset(config.vehicle), params)
+        randomization = None
+        if config.domain_randomization:
+            from laplab.sensors.randomize import RandomizationParams
+            randomization = RandomizationParams(enabled=True)
+        self.observations = ObservationBuilder(self.sim, config.spec, seed=setup.seed, randomization=randomization)
+        max_speed = config.model_metadata.action_space.max_speed
+        self.reward_fn = _compile_reward(setup.reward_source, setup.reward_path, "reward_function",
+                                         float(max_speed), DEEPRACER.max_steering_deg)
+        self.stepper = EpisodeStepper(self.sim, config.spec.action_space, self.reward_fn)
+        threads = setup.camera_threads if config.spec.camera is not None else 1
+        self.learner = build_learner(replace(config, num_threads=config.num_threads or threads), setup.seed)
+
+    def ping(self) -> int:
+        """The worker's process id (it is alive)."""
+        return os.getpid()
+
+    def collect(self, policy: dict, policy_version: int, episodes_before: int) -> WorkerResult:
+        """Drive one episode per car with the broadcast ``policy`` (see :func:`policy_weights`)."""
+        from laplab.cluster.batches import tag
+        from laplab.reward.watchdog import RewardWatchdog, WatchdogLimits
+        from laplab.train.collect import collect_episodes
+
+        learner = self.learner
+        if policy["algorithm"] != learner.algorithm:
+            raise ValueError(f"worker {self.setup.index} runs {learner.algorithm}, got {policy['algorithm']} weights")
+        learner.policy_network.load_state_dict(policy["weights"])
+        if hasattr(learner, "env_steps"):
+            learner.env_steps = policy["env_steps"]
+        before = int(getattr(learner, "env_steps", 0))
+        self.sim.restart_schedule(episodes_before)
+
+        def act(obs):
+            step = learner.act(obs, False)
+            return step.action, step.env_action, step.log_prob, step.value
+
+        limits = WatchdogLimits(self.setup.reward_timeout_s, self.setup.reward_wait_timeout_s)
+        try:
+            with RewardWatchdog(limits):
+                batch = collect_episodes(self.stepper, self.observations, act, learner.values)
+        except RewardFunctionError as exc:
+            return WorkerResult(self.setup.index, policy_version, reward_error=str(exc), pid=os.getpid())
+        acted = int(getattr(learner, "env_steps", 0)) - before
+        tagged = tag(batch, self.setup.index, self.setup.track_label, policy_version)
+        return WorkerResult(self.setup.index, policy_version, tagged, acted, pid=os.getpid())
+
+
+def split_cars(episodes: int, workers: int) -> list[int]:
+    """``episodes`` shared out among ``workers`` as evenly as possible (the first get one more)."""
+    base, extra = divmod(int(episodes), int(workers))
+    return [base + (1 if i < extra else 0) for i in range(workers)]
+
+
+def worker_seed(seed: int, index: int, restarts: int = 0) -> int:
+    """Each worker (and each restart of it) samples its own random stream."""
+    return int(np.random.SeedSequence([seed, index, restarts]).generate_state(1)[0])
