@@ -20,7 +20,7 @@ from laplab.train.errors import JobError
 from laplab.track.geometry import Track
 from laplab.track.registry import load_track
 from laplab.train.archive import check_reward_trusted
-from laplab.train.checkpoint_read import read_checkpoint
+from laplab.train.checkpoint_read import read_checkpoint, read_resume_state
 from laplab.train.recorder import ModelFolderRecorder, RobomakerLogRecorder
 from laplab.train.trainer import Trainer, load_weights_only
 
@@ -154,7 +154,7 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
         track = job_track(config)
         reward_fn = load_and_validate_reward(config, track, folder.reward_function)
         if CheckpointStore(folder).names():
-            _, state = read_checkpoint(folder, "last")
+            _, state = read_resume_state(folder)
         else:  # killed before its first checkpoint was written: start again from scratch
             state = None
         if folder.error_file.exists():
