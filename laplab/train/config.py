@@ -42,6 +42,8 @@ class TrainConfig:
     - ``precision``: the networks' arithmetic in training: ``float32``, ``bfloat16`` (mixed
       precision: trunks compute in bfloat16, weights and optimizer stay float32) or ``auto``
       (bfloat16 for camera networks on CPUs that multiply bfloat16 natively, ~2x faster updates).
+    - ``cloned_from``: for a clone, the model and checkpoint its weights came from
+      (``"SOURCE (checkpoint NAME)"``); None for a model trained from scratch.
     """
 
     track: str = DEFAULT_TRACK
@@ -58,6 +60,7 @@ class TrainConfig:
     domain_randomization: bool = False
     num_threads: int | None = None
     precision: str = "auto"
+    cloned_from: str | None = None
     version: int = CONFIG_VERSION
 
     def __post_init__(self) -> None:

@@ -195,8 +195,8 @@ def clone_config(source: str, overrides: dict, trust_reward: bool = False) -> tu
                 raise JobError(f"a clone keeps its source's {what}: {source!r} has {_show(a)}, the new "
                                f"model_metadata.json asks for {_show(b)}.")
     config = replace(base, **{k: v for k, v in overrides.items() if v is not None})
-    _, state = read_checkpoint(folder, "best")
-    return config, state["learner"]
+    name, state = read_checkpoint(folder, "best")
+    return replace(config, cloned_from=f"{source} (checkpoint {name})"), state["learner"]
 
 
 def _show(value) -> str:
