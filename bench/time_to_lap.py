@@ -5,11 +5,23 @@ Prints, per track and sensor, the median over seeds of: wall time to 3/3 laps, i
 the best lap time reached by then, and training throughput (training env steps per wall second,
 collection + learning + evaluation laps + checkpoints), with the share of the wall time each took.
 ``--min-time S`` keeps training for at least S seconds after the first 3/3, so the throughput is the
-steady state's rather than the first iteration's.
+steady state's rather than the first iteration's; the row's ``end lap`` is then the mean greedy
+evaluation lap of the last iteration whose laps all completed (from a standing start) and ``/opt`` its
+ratio to the race line driven from rest.
+
+``--console ROW`` trains with the DeepRacer console's files instead of laplab's defaults: front
+camera, DEEP_CONVOLUTIONAL_NETWORK_SHALLOW, the console's hyperparameters (laplab's camera
+``num_epochs`` 5), and ``sac`` (continuous -30..30 degrees x 1..4 m/s), ``ppo-continuous`` (the same
+space) or ``ppo-discrete`` (laplab's 21-action grid). The issue-15 rows, for an idle machine:
+
+  python bench/time_to_lap.py --tracks classic_2018 --seeds 0 --console sac --budget 900 --min-time 600
+  python bench/time_to_lap.py --tracks classic_2018 --seeds 0 --console ppo-continuous --budget 900 --min-time 600
+  python bench/time_to_lap.py --tracks classic_2018 --seeds 0 --console ppo-discrete --budget 900 --min-time 600
 
 Usage:
   python bench/time_to_lap.py [--seeds 0 1 2] [--tracks classic_2018 ../shared/reference-tracks/reinvent_base.npy]
-                              [--sensor STATE|FRONT_FACING_CAMERA] [--budget 600] [--min-time 0]
+                              [--sensor STATE|FRONT_FACING_CAMERA] [--console sac|ppo-continuous|ppo-discrete]
+                              [--budget 600] [--min-time 0]
                               [--precision auto|float32|bfloat16] [--hyperparameters '{"num_epochs": 5}']
 """
 
@@ -29,12 +41,16 @@ DEFAULT_TRACKS = ["classic_2018", str(REFERENCE / "reinvent_base.npy"), str(REFE
 
 
 def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s: float = 0.0,
-                precision: str = "auto", hyperparameters: dict | None = None) -> dict:
+                precision: str = "auto", hyperparameters: dict | None = None, console: str | None = None) -> dict:
     from laplab.env.metadata import ModelMetadata
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import create_training
 
-    metadata = replace(ModelMetadata(), sensors=(sensor,)).to_dict()
+    if console is not None:
+        from camera_steps import ROWS, console_metadata  # bench/camera_steps.py
+        metadata = console_metadata(*ROWS[console])
+    else:
+        metadata = replace(ModelMetadata(), sensors=(sensor,)).to_dict()
     config = replace(TrainConfig(), track=track, seed=seed, max_time_s=budget_s, model_metadata=metadata,
                      precision=precision)
     if hyperparameters:
@@ -42,12 +58,15 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
     name = f"bench-{Path(track).stem.replace('_', '-')}-{seed}-{int(time.time() * 1000) % 10**8}"
     trainer = create_training(name, config)
     first: dict = {}
+    end: dict = {}
     seconds: dict[str, float] = {}
 
     def on_iteration(report) -> None:
         for key, value in report.seconds.items():
             seconds[key] = seconds.get(key, 0.0) + value
-        if not first and report.eval_completed == report.eval_episodes:
+        if report.eval_episodes and report.eval_completed == report.eval_episodes:
+            end.update(lap=report.eval_lap_time)
+        if not first and report.eval_episodes and report.eval_completed == report.eval_episodes:
             first.update(wall=report.elapsed_s, iterations=report.iteration, steps=report.env_steps,
                          lap=report.eval_lap_time, best=report.best_lap_time)
 
@@ -57,9 +76,16 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
     elapsed = time.perf_counter() - started
     total = sum(seconds.values()) or 1.0
     return {"lapped": bool(first), "wall": first.get("wall", float("nan")), "iterations": first.get("iterations", result.iterations),
-            "steps": first.get("steps", result.env_steps), "eval_lap": first.get("lap"),
+            "steps": first.get("steps", result.env_steps), "eval_lap": first.get("lap"), "end_lap": end.get("lap"),
             "throughput": result.env_steps / max(elapsed, 1e-9),
             "shares": {key: value / total for key, value in seconds.items()}}
+
+
+def standing_optimum(track: str) -> float:
+    """The race line's lap time from rest, s (what a standing-start evaluation lap can reach)."""
+    from laplab.track.raceline_cache import standing_start_optimal_lap_time
+    from laplab.track.registry import load_track
+    return standing_start_optimal_lap_time(load_track(track))
 
 
 def main() -> None:
@@ -71,21 +97,28 @@ def main() -> None:
     parser.add_argument("--min-time", type=float, default=0.0, help="train at least this many seconds")
     parser.add_argument("--precision", default="auto")
     parser.add_argument("--hyperparameters", default="{}", help="JSON of hyperparameters to override")
+    parser.add_argument("--console", choices=("sac", "ppo-continuous", "ppo-discrete"),
+                        help="train with the console's files (front camera, SHALLOW network); see above")
     args = parser.parse_args()
+    label = f"camera {args.console}" if args.console else args.sensor
     os.environ.setdefault("LAPLAB_HOME", tempfile.mkdtemp(prefix="laplab-bench-"))
-    print(f"{'track':28s} {'sensor':20s} {'lapped':>6s} {'time to 3/3 s':>13s} {'iters':>5s} "
-          f"{'env steps':>9s} {'eval lap s':>10s} {'steps/s':>8s}  time shares")
+    print(f"{'track':28s} {'model':20s} {'lapped':>6s} {'time to 3/3 s':>13s} {'iters':>5s} "
+          f"{'env steps':>9s} {'eval lap s':>10s} {'end lap s':>9s} {'/opt':>5s} {'steps/s':>8s}  time shares")
     for track in args.tracks:
         if track.endswith(".npy") and not Path(track).is_file():
             print(f"{Path(track).name:28s} skipped: file not found")
             continue
         runs = [time_to_lap(track, seed, args.sensor, args.budget, args.min_time, args.precision,
-                            json.loads(args.hyperparameters)) for seed in args.seeds]
+                            json.loads(args.hyperparameters), args.console) for seed in args.seeds]
         lapped = [r for r in runs if r["lapped"]]
         med = lambda key: statistics.median(r[key] for r in lapped) if lapped else float("nan")
         laps = [r["eval_lap"] for r in lapped if r["eval_lap"]]
-        print(f"{Path(track).stem:28s} {args.sensor:20s} {len(lapped)}/{len(runs):<4d} {med('wall'):13.1f} "
+        end_laps = [r["end_lap"] for r in runs if r["end_lap"]]
+        end_lap = statistics.median(end_laps) if end_laps else float("nan")
+        optimum = standing_optimum(track) if end_laps else float("nan")
+        print(f"{Path(track).stem:28s} {label:20s} {len(lapped)}/{len(runs):<4d} {med('wall'):13.1f} "
               f"{med('iterations'):5.0f} {med('steps'):9.0f} {statistics.median(laps) if laps else float('nan'):10.2f} "
+              f"{end_lap:9.2f} {end_lap / optimum:5.2f} "
               f"{statistics.median(r['throughput'] for r in runs):8.0f}  "
               + " ".join(f"{key} {statistics.median(r['shares'].get(key, 0.0) for r in runs):.0%}"
                          for key in runs[0]["shares"]))

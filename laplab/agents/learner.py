@@ -7,7 +7,7 @@ is PPO or SAC. This module imports without torch (the implementations load on fi
 from __future__ import annotations
 
 import importlib
-from typing import Any, Mapping, NamedTuple, Protocol, runtime_checkable
+from typing import Any, Callable, Mapping, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -50,8 +50,12 @@ class Learner(Protocol):
 
     - ``act(obs, deterministic)``: actions for a batch; exploring calls advance exploration schedules.
     - ``values(obs)``: V(obs) (B,) for bootstrapping cut episodes (zeros where there is no V).
-    - ``learn(batch)``: one training iteration on an :class:`Experience`; returns loss figures.
-    - ``state_dict()`` / ``load_state_dict(state)``: everything to resume (weights, optimizers, schedules).
+    - ``learn(batch, should_stop=None, on_progress=None)``: one training iteration on an
+      :class:`Experience`; returns loss figures. ``should_stop()`` is polled between gradient steps
+      (True ends the iteration early, the networks whole); ``on_progress(done, total)`` follows each step.
+    - ``state_dict()`` / ``load_state_dict(state)``: everything to resume (weights, optimizers, schedules);
+      ``load_state_dict`` also takes a ``weights_state()`` (fresh optimizers, targets rebuilt from weights).
+    - ``weights_state()``: the weights, schedules and config without optimizers (compact checkpoints).
     - ``load_weights(state)``: the network weights of a ``state_dict()`` only (a clone: fresh optimizer).
     - ``policy_network``: the torch module that maps observations to the greedy policy (for export).
     - ``rng``: the numpy generator of its exploration (seeded evaluations replace it).
@@ -64,9 +68,12 @@ class Learner(Protocol):
 
     def values(self, observations: Any) -> np.ndarray: ...
 
-    def learn(self, batch: Experience) -> dict[str, float]: ...
+    def learn(self, batch: Experience, should_stop: Callable[[], bool] | None = None,
+              on_progress: Callable[[int, int], None] | None = None) -> dict[str, float]: ...
 
     def state_dict(self) -> dict[str, Any]: ...
+
+    def weights_state(self) -> dict[str, Any]: ...
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None: ...
 

@@ -360,28 +360,38 @@ class SquashedGaussianActor(nn.Module):
         return torch.tanh(pre_tanh), squashed_gaussian_log_prob(pre_tanh, normal)
 
 
-class QNetwork(nn.Module):
-    """Q(s, a): the observation trunk's features concatenated with the action, dense 256, 256, 1."""
+class TwinQ(nn.Module):
+    """SAC's twin Q(s, a) (clipped double-Q) as rl_coach's ``SACQHead`` builds it: one observation
+    trunk (embedders + middleware) whose features, concatenated with the action, feed two
+    independent dense 256, 256, 1 heads. The trunk runs once for both heads."""
 
     def __init__(self, observation_space: gym.spaces.Space, action_dim: int, network_name: str = DEFAULT_NETWORK):
         super().__init__()
         self.trunk = build_embedder(observation_space, network_name)
-        self.head = nn.Sequential(_dense_stack(self.trunk.output_dim + action_dim, (256, 256), nn.ReLU),
-                                  nn.Linear(256, 1))
+        width = self.trunk.output_dim + action_dim
+        self.q1 = nn.Sequential(_dense_stack(width, (256, 256), nn.ReLU), nn.Linear(256, 1))
+        self.q2 = nn.Sequential(_dense_stack(width, (256, 256), nn.ReLU), nn.Linear(256, 1))
 
-    def forward(self, observations: Any, actions: torch.Tensor) -> torch.Tensor:
-        """-> Q values (B,)."""
-        return self.head(torch.cat([self.trunk(observations), actions], dim=-1)).squeeze(-1)
-
-
-class TwinQ(nn.Module):
-    """Two independent Q networks (clipped double-Q)."""
-
-    def __init__(self, observation_space: gym.spaces.Space, action_dim: int, network_name: str = DEFAULT_NETWORK):
-        super().__init__()
-        self.q1 = QNetwork(observation_space, action_dim, network_name)
-        self.q2 = QNetwork(observation_space, action_dim, network_name)
+    def heads(self, features: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Both heads on trunk ``features`` (B, F) and ``actions`` (B, A) -> (q1 (B,), q2 (B,))."""
+        joined = torch.cat([features, actions], dim=-1)
+        return self.q1(joined).squeeze(-1), self.q2(joined).squeeze(-1)
 
     def forward(self, observations: Any, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """-> (q1 (B,), q2 (B,))."""
-        return self.q1(observations, actions), self.q2(observations, actions)
+        return self.heads(self.trunk(observations), actions)
+
+
+def twin_q_from_separate(state: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """A :class:`TwinQ` state dict from one of laplab's older layout (``q1.trunk``, ``q1.head``,
+    ``q2.trunk``, ``q2.head``: a trunk per head): the shared trunk takes q1's trunk, each head
+    keeps its dense layers (q2's own trunk is dropped). States of the current layout pass through."""
+    if not any(key.startswith("q1.trunk.") for key in state):
+        return dict(state)
+    out = {}
+    for key, value in state.items():
+        if key.startswith("q1.trunk."):
+            out["trunk." + key[len("q1.trunk."):]] = value
+        elif key.startswith(("q1.head.", "q2.head.")):
+            out[key[:2] + key[len("q1.head"):]] = value
+    return out

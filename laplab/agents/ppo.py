@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import asdict
-from typing import Any, Mapping, NamedTuple
+from typing import Any, Callable, Mapping, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -206,10 +206,13 @@ class PPOLearner:
     def policy_network(self) -> ActorCritic:
         return self.model
 
-    def learn(self, batch: Any) -> dict[str, float]:
-        """One training iteration on complete episodes (a :class:`laplab.agents.learner.Experience`)."""
+    def learn(self, batch: Any, should_stop: Callable[[], bool] | None = None,
+              on_progress: Callable[[int, int], None] | None = None) -> dict[str, float]:
+        """One training iteration on complete episodes (a :class:`laplab.agents.learner.Experience`);
+        ``should_stop`` and ``on_progress`` as in :meth:`update`."""
         return self.update(Rollout(batch.observations, batch.actions, batch.log_probs, batch.values, batch.rewards,
-                                   batch.terminated, batch.truncated, batch.bootstrap_values, None, batch.valid))
+                                   batch.terminated, batch.truncated, batch.bootstrap_values, None, batch.valid),
+                           should_stop, on_progress)
 
     def load_weights(self, state: Mapping[str, Any]) -> None:
         """Start from the network weights of ``state`` (a clone: fresh optimizer and schedules)."""
@@ -217,10 +220,13 @@ class PPOLearner:
             raise ValueError(f"cannot start a {type(self).__name__} from a {state.get('algorithm')} checkpoint")
         self.model.load_state_dict(state["model"])
 
-    def update(self, rollout: Rollout) -> dict[str, float]:
+    def update(self, rollout: Rollout, should_stop: Callable[[], bool] | None = None,
+               on_progress: Callable[[int, int], None] | None = None) -> dict[str, float]:
         """One DeepRacer training iteration on ``rollout``. Returns means over all minibatches:
         policy_loss, value_loss, entropy, approx_kl, clip_fraction; plus explained_variance,
-        num_steps, num_minibatches, epsilon."""
+        num_steps, num_minibatches, epsilon. ``should_stop()`` is polled before each minibatch (True
+        ends the iteration early, after a whole minibatch step); ``on_progress(done, total)`` is
+        called after each minibatch."""
         hp = self.hyperparameters
         rewards, dones = fold_truncation(rollout.rewards, rollout.terminated, rollout.truncated,
                                          rollout.bootstrap_values, hp.discount_factor)
@@ -250,16 +256,25 @@ class PPOLearner:
 
         totals = np.zeros(5)
         minibatches = 0
+        total = hp.num_epochs * -(-rows.size // hp.batch_size)
+        stopped = False
         self.model.train()
         for _ in range(hp.num_epochs):
+            if stopped:
+                break
             order = self.rng.permutation(rows.size)
             for start in range(0, rows.size, hp.batch_size):
+                if should_stop is not None and should_stop():
+                    stopped = True
+                    break
                 index = order[start:start + hp.batch_size]
                 totals += self._minibatch_step(_take(observations, index), actions[index],
                                                old_log_probs[index], advantages[index], returns[index])
                 minibatches += 1
+                if on_progress is not None:
+                    on_progress(minibatches, total)
         self.iterations += 1
-        means = totals / minibatches
+        means = totals / max(minibatches, 1) if minibatches else np.full(5, np.nan)
         return_variance = float(np.var(returns.numpy()))
         explained = 1.0 - float(np.var(returns.numpy() - old_values)) / return_variance if return_variance > 0 else 0.0
         return {"policy_loss": float(means[0]), "value_loss": float(means[1]), "entropy": float(means[2]),
@@ -283,15 +298,18 @@ class PPOLearner:
         approx_kl, clip_fraction = policy_change_stats(log_probs, old_log_probs, CLIP_EPSILON)
         return np.array([policy_loss.item(), critic_loss.item(), entropy.mean().item(), approx_kl, clip_fraction])
 
-    def state_dict(self) -> dict[str, Any]:
-        """Everything needed to resume: weights, optimizer, schedules and the full config."""
-        return {"algorithm": "clipped_ppo", "model": self.model.state_dict(),
-                "optimizer": self.optimizer.state_dict(), "env_steps": self.env_steps,
+    def weights_state(self) -> dict[str, Any]:
+        """Weights, schedules and config without the optimizer (checkpoints other than the last, exports)."""
+        return {"algorithm": "clipped_ppo", "model": self.model.state_dict(), "env_steps": self.env_steps,
                 "iterations": self.iterations, "hyperparameters": self.hyperparameters.to_dict(),
                 "network_name": self.network_name, "action_spec": asdict(self.action_spec)}
 
+    def state_dict(self) -> dict[str, Any]:
+        """Everything needed to resume: weights, optimizer, schedules and the full config."""
+        return {**self.weights_state(), "optimizer": self.optimizer.state_dict()}
+
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        """Restore from ``state_dict()``; the network and action space must match this learner."""
+        """Restore from ``state_dict()`` (or ``weights_state()``); the network and action space must match."""
         saved = (state.get("network_name"), state.get("action_spec"))
         if state.get("algorithm") != "clipped_ppo" or saved != (self.network_name, asdict(self.action_spec)):
             raise ValueError(
@@ -301,6 +319,7 @@ class PPOLearner:
                 "and network cannot change."
             )
         self.model.load_state_dict(state["model"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        if "optimizer" in state:  # a weights-only state (an export) resumes with a fresh optimizer
+            self.optimizer.load_state_dict(state["optimizer"])
         self.env_steps = int(state["env_steps"])
         self.iterations = int(state["iterations"])

@@ -2,7 +2,7 @@
 
 A squashed-Gaussian policy in (-1, 1)^A, twin Q networks with Polyak-averaged targets and a
 fixed entropy temperature ``sac_alpha`` (DeepRacer does not tune it). Gamma is
-``discount_factor``, all three optimizers use ``lr``; an iteration makes
+``discount_factor``, both optimizers use ``lr``; an iteration makes
 ``num_epochs * ceil(new_steps / batch_size)`` gradient steps on uniform replay samples,
 mirroring PPO's passes over the new experience.
 """
@@ -12,7 +12,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import asdict
-from typing import Any, Mapping, NamedTuple
+from typing import Any, Callable, Mapping, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -22,7 +22,8 @@ import torch.nn.functional as F
 from laplab.agents.hyperparameters import Hyperparameters
 from laplab.agents.losses import sac_actor_loss, sac_critic_target
 from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, PolicyStep, SquashedGaussianActor,
-                                    TwinQ, action_spec_from, observation_to_tensor, set_compute_precision)
+                                    TwinQ, action_spec_from, observation_to_tensor, set_compute_precision,
+                                    twin_q_from_separate)
 from laplab.agents.ppo import limit_torch_threads
 
 TARGET_SMOOTHING = 0.005  # tau of the Polyak target update
@@ -41,60 +42,116 @@ class ReplayBatch(NamedTuple):
 
 
 class ReplayBuffer:
-    """A fixed-capacity ring buffer of transitions in preallocated numpy arrays (observation
-    dtypes kept, so camera frames stay uint8)."""
+    """A fixed-capacity ring of observations in preallocated numpy arrays (observation dtypes kept,
+    so camera frames stay uint8), each frame stored once.
+
+    Slot ``i`` holds an observation; when it starts a transition (``starts[i]``) it also holds that
+    transition's action, reward and end flag, and its next observation is in slot ``i + 1`` (mod
+    capacity) unless the transition ended its episode (then the next observation is never used:
+    the target is not bootstrapped). Episodes are written in order, so a slot is always overwritten
+    before the slot after it and a transition never points at a newer frame. Capacity counts slots.
+    """
 
     def __init__(self, capacity: int, observation_space: gym.spaces.Space, action_dim: int):
-        if capacity < 1:
-            raise ValueError(f"Replay buffer capacity must be >= 1, got {capacity}.")
+        if capacity < 2:
+            raise ValueError(f"Replay buffer capacity must be >= 2, got {capacity}.")
         self.capacity = int(capacity)
         self.is_dict = isinstance(observation_space, gym.spaces.Dict)
         spaces = dict(observation_space.spaces) if self.is_dict else {"": observation_space}
         self.observations = {k: np.zeros((capacity, *s.shape), s.dtype) for k, s in spaces.items()}
-        self.next_observations = {k: np.zeros((capacity, *s.shape), s.dtype) for k, s in spaces.items()}
         self.actions = np.zeros((capacity, action_dim), np.float32)
         self.rewards = np.zeros(capacity, np.float32)
         self.terminated = np.zeros(capacity, np.float32)
+        self.starts = np.zeros(capacity, bool)  # the slot starts a transition
+        self.has_next = np.zeros(capacity, bool)  # its next observation is in the following slot
         self.position = 0
-        self.size = 0
+        self.filled = 0  # slots written
+        self._start_slots: np.ndarray | None = None
 
     def __len__(self) -> int:
-        return self.size
+        """Transitions held."""
+        return int(self.starts.sum()) if self._start_slots is None else len(self._start_slots)
+
+    def _write(self, observations: Any, count: int) -> np.ndarray:
+        slots = (self.position + np.arange(count)) % self.capacity
+        obs = observations if self.is_dict else {"": observations}
+        for key, array in self.observations.items():
+            array[slots] = obs[key]
+        self.starts[slots] = False
+        self.has_next[slots] = False
+        self.position = int((self.position + count) % self.capacity)
+        self.filled = min(self.filled + count, self.capacity)
+        self._start_slots = None
+        return slots
+
+    def add_episode(self, observations: Any, actions: np.ndarray, rewards: np.ndarray, ended: np.ndarray) -> None:
+        """One episode's L steps in order: observations (L, ...) (a dict sensor-wise), actions (L, A),
+        rewards (L,), ended (L,) (1 where the step ended the episode; the observation after step t is
+        observation t + 1 otherwise)."""
+        ended = np.asarray(ended, np.float32).reshape(-1)
+        count = ended.shape[0]
+        if count == 0:
+            return
+        if count > self.capacity - 1:
+            raise ValueError(f"an episode of {count} steps does not fit a replay buffer of {self.capacity} slots")
+        slots = self._write(observations, count)
+        self.actions[slots] = np.asarray(actions, np.float32).reshape(count, -1)
+        self.rewards[slots] = np.asarray(rewards, np.float32).reshape(-1)
+        self.terminated[slots] = ended
+        self.starts[slots] = True
+        self.has_next[slots] = ended == 0
+        if ended[-1] == 0:  # a cut-off tail: its next frame is missing, so it is no transition
+            self.starts[slots[-1]] = False
 
     def add(self, observations: Any, actions: np.ndarray, rewards: np.ndarray,
             next_observations: Any, terminated: np.ndarray) -> None:
-        """Store B transitions (arrays with leading axis B; dict observations sensor-wise)."""
+        """Store B independent transitions (arrays with leading axis B; dict observations sensor-wise):
+        each takes two slots, its observation and its next observation."""
         rewards = np.asarray(rewards, np.float32).reshape(-1)
         batch = rewards.shape[0]
-        slots = (self.position + np.arange(batch)) % self.capacity
-        obs = observations if self.is_dict else {"": observations}
-        next_obs = next_observations if self.is_dict else {"": next_observations}
-        for key in self.observations:
-            self.observations[key][slots] = obs[key]
-            self.next_observations[key][slots] = next_obs[key]
-        self.actions[slots] = np.asarray(actions, np.float32).reshape(batch, -1)
-        self.rewards[slots] = rewards
-        self.terminated[slots] = np.asarray(terminated, np.float32).reshape(-1)
-        self.position = int((self.position + batch) % self.capacity)
-        self.size = min(self.size + batch, self.capacity)
+        if 2 * batch > self.capacity:
+            raise ValueError(f"{batch} transitions do not fit a replay buffer of {self.capacity} slots")
+        pick = lambda o, k: {key: np.asarray(v)[k] for key, v in o.items()} if self.is_dict else np.asarray(o)[k]
+        actions = np.asarray(actions, np.float32).reshape(batch, -1)
+        terminated = np.asarray(terminated, np.float32).reshape(-1)
+        for k in range(batch):
+            first = self._write(_expand(pick(observations, k), self.is_dict), 1)
+            self._write(_expand(pick(next_observations, k), self.is_dict), 1)
+            self.actions[first] = actions[k]
+            self.rewards[first] = rewards[k]
+            self.terminated[first] = terminated[k]
+            self.starts[first] = True
+            self.has_next[first] = True
 
     def sample(self, batch_size: int, rng: np.random.Generator) -> ReplayBatch:
         """B transitions drawn uniformly with replacement."""
-        index = rng.integers(0, self.size, batch_size)
+        if self._start_slots is None:
+            self._start_slots = np.flatnonzero(self.starts)
+        index = self._start_slots[rng.integers(0, len(self._start_slots), batch_size)]
+        following = np.where(self.has_next[index], (index + 1) % self.capacity, index)
         obs = {key: value[index] for key, value in self.observations.items()}
-        next_obs = {key: value[index] for key, value in self.next_observations.items()}
+        next_obs = {key: value[following] for key, value in self.observations.items()}
         if not self.is_dict:
             obs, next_obs = obs[""], next_obs[""]
         return ReplayBatch(obs, self.actions[index], self.rewards[index], next_obs, self.terminated[index])
+
+
+def _expand(observation: Any, is_dict: bool) -> Any:
+    """One observation -> a batch of one."""
+    if is_dict:
+        return {key: np.asarray(value)[None] for key, value in observation.items()}
+    return np.asarray(observation)[None]
 
 
 class SACLearner:
     """DeepRacer's SAC: ``act`` -> actions in [-1, 1]^A, ``observe`` transitions, ``update``.
 
     ``seed`` seeds torch's global RNG and this learner's numpy RNG (replay sampling).
+    ``buffer_capacity`` counts replay slots (one frame each).
     """
 
     algorithm = "sac"
+    WEIGHTS = ("actor", "critic")  # what a weights-only checkpoint holds (the target is rebuilt from the critic)
 
     def __init__(self, observation_space: gym.spaces.Space, action_space_spec: Any,
                  hyperparameters: Hyperparameters = Hyperparameters(),
@@ -116,6 +173,7 @@ class SACLearner:
         self.precision = set_compute_precision(self.actor, precision)
         set_compute_precision(self.critic, self.precision)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
+        self._head_parameters = [*self.critic.q1.parameters(), *self.critic.q2.parameters()]
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=hyperparameters.lr, fused=True)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=hyperparameters.lr, fused=True)
         self.buffer = ReplayBuffer(buffer_capacity, observation_space, dim)
@@ -140,57 +198,67 @@ class SACLearner:
     def policy_network(self) -> SquashedGaussianActor:
         return self.actor
 
-    def learn(self, batch: Any) -> dict[str, float]:
+    def learn(self, batch: Any, should_stop: Callable[[], bool] | None = None,
+              on_progress: Callable[[int, int], None] | None = None) -> dict[str, float]:
         """Add complete episodes (a :class:`laplab.agents.learner.Experience`) to the replay buffer and
-        make the iteration's gradient steps."""
+        make the iteration's gradient steps (see :meth:`update` for ``should_stop`` and ``on_progress``).
+
+        Each episode's frames go in once: the observation after step t is step t + 1's. The observation
+        after a car's last step is never recorded (the car stops); its target is not bootstrapped, so
+        none is needed. A truncated episode's final observation is not recorded either: SAC treats the
+        cut as an end (time_up only fires at the 100,000-step cap, so the bias is negligible)."""
         obs, valid = batch.observations, batch.valid
-        t_idx, e_idx = np.nonzero(valid)
-        following = np.minimum(t_idx + 1, valid.shape[0] - 1)
-        done = batch.terminated[t_idx, e_idx] | batch.truncated[t_idx, e_idx]
-        # The observation after a car's last step is never recorded (the car stops); its target is not
-        # bootstrapped (terminated), so any placeholder works: use the same observation. A truncated
-        # episode's final observation is not recorded either: SAC treats the cut as an end (time_up
-        # only fires at the 100,000-step cap, so the bias this causes is negligible).
-        next_t = np.where(done, t_idx, following)
-
-        def pick(t: np.ndarray) -> Any:
-            return {k: v[t, e_idx] for k, v in obs.items()} if isinstance(obs, Mapping) else obs[t, e_idx]
-        self.observe(pick(t_idx), batch.actions[t_idx, e_idx], batch.rewards[t_idx, e_idx], pick(next_t), done)
-        return self.update(self.gradient_steps_for(int(valid.sum())))
-
-    def load_weights(self, state: Mapping[str, Any]) -> None:
-        """Start from the network weights of ``state`` (a clone: fresh optimizers)."""
-        if state.get("algorithm") != self.algorithm:
-            raise ValueError(f"cannot start a {type(self).__name__} from a {state.get('algorithm')} checkpoint")
-        for name in ("actor", "critic", "target_critic"):
-            getattr(self, name).load_state_dict(state[name])
+        ended = batch.terminated | batch.truncated
+        for car in range(valid.shape[1]):
+            steps = np.flatnonzero(valid[:, car])
+            if steps.size == 0:
+                continue
+            frames = {k: v[steps, car] for k, v in obs.items()} if isinstance(obs, Mapping) else obs[steps, car]
+            self.buffer.add_episode(frames, batch.actions[steps, car], batch.rewards[steps, car], ended[steps, car])
+        return self.update(self.gradient_steps_for(int(valid.sum())), should_stop, on_progress)
 
     def observe(self, observations: Any, actions: np.ndarray, rewards: np.ndarray,
                 next_observations: Any, terminated: np.ndarray) -> None:
-        """Add B transitions to the replay buffer (``next_observations`` of ended episodes must be
-        their final observation, not the reset one)."""
+        """Add B independent transitions to the replay buffer (``next_observations`` of ended episodes
+        must be their final observation, not the reset one)."""
         self.buffer.add(observations, actions, rewards, next_observations, terminated)
 
     def gradient_steps_for(self, num_new_steps: int) -> int:
         """Gradient steps of one iteration that collected ``num_new_steps`` env steps."""
         return self.hyperparameters.num_epochs * math.ceil(num_new_steps / self.hyperparameters.batch_size)
 
-    def update(self, num_gradient_steps: int) -> dict[str, float]:
-        """Make ``num_gradient_steps`` critic + actor steps (none while the buffer holds fewer
-        than ``batch_size`` transitions). Returns means: critic_loss, actor_loss, q_mean,
-        entropy (= -mean log pi), num_gradient_steps."""
+    def update(self, num_gradient_steps: int, should_stop: Callable[[], bool] | None = None,
+               on_progress: Callable[[int, int], None] | None = None) -> dict[str, float]:
+        """Make up to ``num_gradient_steps`` critic + actor steps (none while the buffer holds fewer
+        than ``batch_size`` transitions). ``should_stop()`` is polled before each step (True ends the
+        update early: the networks stay consistent, as after any whole step); ``on_progress(done, total)``
+        is called after each. Returns means: critic_loss, actor_loss, q_mean, entropy (= -mean log pi),
+        and num_gradient_steps made."""
         hp = self.hyperparameters
+        nan = {"critic_loss": float("nan"), "actor_loss": float("nan"), "q_mean": float("nan"),
+               "entropy": float("nan"), "num_gradient_steps": 0}
         if len(self.buffer) < hp.batch_size or num_gradient_steps <= 0:
-            return {"critic_loss": float("nan"), "actor_loss": float("nan"), "q_mean": float("nan"),
-                    "entropy": float("nan"), "num_gradient_steps": 0}
-        totals = np.zeros(4)
+            return nan
+        totals = torch.zeros(4, dtype=torch.float64)
+        done = 0
         for _ in range(num_gradient_steps):
+            if should_stop is not None and should_stop():
+                break
             totals += self._gradient_step(self.buffer.sample(hp.batch_size, self.rng))
-        means = totals / num_gradient_steps
-        return {"critic_loss": float(means[0]), "actor_loss": float(means[1]), "q_mean": float(means[2]),
-                "entropy": float(means[3]), "num_gradient_steps": num_gradient_steps}
+            done += 1
+            if on_progress is not None:
+                on_progress(done, num_gradient_steps)
+        if done == 0:
+            return nan
+        means = (totals / done).tolist()
+        return {"critic_loss": means[0], "actor_loss": means[1], "q_mean": means[2], "entropy": means[3],
+                "num_gradient_steps": done}
 
-    def _gradient_step(self, batch: ReplayBatch) -> np.ndarray:
+    def _gradient_step(self, batch: ReplayBatch) -> torch.Tensor:
+        """One step of both networks on one minibatch: the critic towards the soft Bellman target of
+        the target critic, the actor against the critic as it was before this step (rl_coach's order),
+        in one backward pass; then the target critic moves ``TARGET_SMOOTHING`` of the way (in place).
+        The critic's trunk runs once for both Q heads and both losses."""
         hp, device = self.hyperparameters, self.device
         obs = observation_to_tensor(batch.observations, device)
         next_obs = observation_to_tensor(batch.next_observations, device)
@@ -201,43 +269,79 @@ class SACLearner:
             next_q1, next_q2 = self.target_critic(next_obs, next_actions)
             target = sac_critic_target(rewards, terminated, next_q1, next_q2, next_log_probs,
                                        hp.discount_factor, hp.sac_alpha)
-        q1, q2 = self.critic(obs, actions)
+        features = self.critic.trunk(obs)
+        q1, q2 = self.critic.heads(features, actions)
         critic_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)
-        self.critic_optimizer.zero_grad(set_to_none=True)
-        critic_loss.backward()
-        self.critic_optimizer.step()
 
         new_actions, log_probs = self.actor(obs)
-        self.critic.requires_grad_(False)  # the actor's loss must not train the critics
-        actor_loss = sac_actor_loss(*self.critic(obs, new_actions), log_probs, hp.sac_alpha)
-        self.critic.requires_grad_(True)
-        self.actor_optimizer.zero_grad(set_to_none=True)
-        actor_loss.backward()
-        self.actor_optimizer.step()
+        for parameter in self._head_parameters:  # the actor's loss must not train the critic
+            parameter.requires_grad_(False)
+        actor_loss = sac_actor_loss(*self.critic.heads(features.detach(), new_actions), log_probs, hp.sac_alpha)
+        for parameter in self._head_parameters:
+            parameter.requires_grad_(True)
 
+        self.critic_optimizer.zero_grad(set_to_none=True)
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        (critic_loss + actor_loss).backward()  # disjoint graphs: each network gets its own loss's gradient
+        self.critic_optimizer.step()
+        self.actor_optimizer.step()
         with torch.no_grad():
-            for target_param, param in zip(self.target_critic.parameters(), self.critic.parameters()):
-                target_param.lerp_(param, TARGET_SMOOTHING)
+            torch._foreach_lerp_(self._target_parameters(), self._critic_parameters(), TARGET_SMOOTHING)
         self.gradient_steps += 1
-        return np.array([critic_loss.item(), actor_loss.item(), q1.mean().item(), -log_probs.mean().item()])
+        return torch.stack([critic_loss.detach(), actor_loss.detach(), q1.detach().mean(),
+                            -log_probs.detach().mean()]).double()
+
+    def _target_parameters(self) -> list[torch.Tensor]:
+        return list(self.target_critic.parameters())
+
+    def _critic_parameters(self) -> list[torch.Tensor]:
+        return list(self.critic.parameters())
+
+    def _config(self) -> dict[str, Any]:
+        return {"algorithm": "sac", "gradient_steps": self.gradient_steps,
+                "hyperparameters": self.hyperparameters.to_dict(), "network_name": self.network_name,
+                "action_spec": asdict(self.action_spec)}
+
+    def weights_state(self) -> dict[str, Any]:
+        """The networks' weights and config, no optimizer or target (a checkpoint other than the last,
+        an export): what evaluation, export and clones need."""
+        return {**self._config(), "actor": self.actor.state_dict(), "critic": self.critic.state_dict()}
 
     def state_dict(self) -> dict[str, Any]:
-        """Weights, optimizers and config (the replay buffer is not saved)."""
-        return {"algorithm": "sac", "actor": self.actor.state_dict(), "critic": self.critic.state_dict(),
-                "target_critic": self.target_critic.state_dict(),
+        """Everything to resume: weights, target critic, optimizers and config (the replay buffer is
+        not saved)."""
+        return {**self.weights_state(), "target_critic": self.target_critic.state_dict(),
                 "actor_optimizer": self.actor_optimizer.state_dict(),
-                "critic_optimizer": self.critic_optimizer.state_dict(),
-                "gradient_steps": self.gradient_steps, "hyperparameters": self.hyperparameters.to_dict(),
-                "network_name": self.network_name, "action_spec": asdict(self.action_spec)}
+                "critic_optimizer": self.critic_optimizer.state_dict()}
+
+    def load_weights(self, state: Mapping[str, Any]) -> None:
+        """Start from the network weights of ``state`` (a clone: fresh optimizers; the target critic
+        starts as a copy of the critic)."""
+        if state.get("algorithm") != self.algorithm:
+            raise ValueError(f"cannot start a {type(self).__name__} from a {state.get('algorithm')} checkpoint")
+        self.actor.load_state_dict(state["actor"])
+        self.critic.load_state_dict(twin_q_from_separate(state["critic"]))
+        self.target_critic.load_state_dict(self.critic.state_dict())
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        """Restore from ``state_dict()``; the network and action space must match."""
+        """Restore from ``state_dict()`` (or ``weights_state()``: fresh optimizers, the target critic
+        a copy of the critic); the network and action space must match."""
         saved = (state.get("network_name"), state.get("action_spec"))
         if state.get("algorithm") != "sac" or saved != (self.network_name, asdict(self.action_spec)):
             raise ValueError(
                 f"Checkpoint ({state.get('algorithm')}, network {saved[0]!r}, actions {saved[1]}) does "
                 f"not match this SAC learner ({self.network_name!r}, {asdict(self.action_spec)})."
             )
-        for name in ("actor", "critic", "target_critic", "actor_optimizer", "critic_optimizer"):
-            getattr(self, name).load_state_dict(state[name])
-        self.gradient_steps = int(state["gradient_steps"])
+        self.load_weights(state)
+        if "target_critic" in state:
+            self.target_critic.load_state_dict(twin_q_from_separate(state["target_critic"]))
+        if "actor_optimizer" in state and "critic_optimizer" in state and not _separate_layout(state):
+            self.actor_optimizer.load_state_dict(state["actor_optimizer"])
+            self.critic_optimizer.load_state_dict(state["critic_optimizer"])
+        self.gradient_steps = int(state.get("gradient_steps", 0))
+
+
+def _separate_layout(state: Mapping[str, Any]) -> bool:
+    """Whether ``state`` comes from laplab's older twin-Q layout (a trunk per Q head), whose critic
+    optimizer state fits no longer."""
+    return any(key.startswith("q1.trunk.") for key in state.get("critic", {}))

@@ -44,6 +44,10 @@ class PlotStyle:
 
 
 def _save(figure: Figure, path: Path, style: PlotStyle) -> Path:
+    for ax in figure.axes:  # a legend without entries is a bare box: drop it
+        legend = ax.get_legend()
+        if legend is not None and not legend.get_texts():
+            legend.remove()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=style.dpi, bbox_inches="tight")

@@ -146,13 +146,15 @@ def _header(context: ReportContext, history: TrainingHistory) -> str:
         ("algorithm", metadata.get("training_algorithm", "?")),
         ("action space", action_text),
         ("sensors", ", ".join(metadata.get("sensor", [])) or "?"),
-        ("network", metadata.get("neural_network", "?")),
+        ("network", network_text(metadata)),
         ("iterations", history.size),
         ("training episodes", int(history.episodes.training.sum()) if history.episodes is not None else last.get("episodes", "–")),
         ("environment steps", _fmt(last.get("env_steps"))),
         ("best lap", _fmt(last.get("best_lap_time"), 3, " s")),
         ("best checkpoint", best.get("name", "–")),
     ]
+    if config.get("cloned_from"):
+        facts.insert(1, ("cloned from", config["cloned_from"]))
     rows = "".join(f"<tr><th>{_esc(k)}</th><td>{_esc(v)}</td></tr>" for k, v in facts)
     error = folder.read_error()
     error_html = (f'<div class="error"><b>Training stopped with an error:</b><pre>{_esc(error)}</pre></div>'
@@ -160,6 +162,29 @@ def _header(context: ReportContext, history: TrainingHistory) -> str:
     stamp = time.strftime("%Y-%m-%d %H:%M:%S")
     return (f"<header><h1>{_esc(folder.name)}</h1><p class='sub'>laplab report, {stamp} · "
             f"{_esc(folder.root)}</p></header>{error_html}<table class='facts'>{rows}</table>")
+
+
+CAMERA_NAMES = ("FRONT_FACING_CAMERA", "STEREO_CAMERAS", "LEFT_CAMERA", "observation")
+
+
+def network_text(metadata: dict) -> str:
+    """The network as it is built: ``neural_network`` names conv layers that only a camera uses, so a
+    model without a camera (STATE, lidar) has an MLP whatever the metadata names."""
+    name = metadata.get("neural_network", "?")
+    sensors = metadata.get("sensor") or []
+    if any(sensor in CAMERA_NAMES for sensor in sensors):
+        return name
+    return f"MLP (dense layers on {', '.join(sensors) or 'the vector sensors'}; no camera, so no {name} convolutions)"
+
+
+def losses_caption(algorithm: str | None) -> str:
+    """What the learner-statistics panels show, for the model's algorithm."""
+    lead = "Learner statistics per iteration (red: moving average). "
+    if algorithm == "sac":
+        return lead + ("SAC: critic loss is the twin Q networks' squared soft Bellman error, actor loss "
+                       "alpha x log pi - Q (falls as the policy finds better actions), entropy -log pi of the "
+                       "sampled actions, q mean the critic's value estimate.")
+    return lead + "PPO: entropy falls as the policy grows sure; approx_kl is how far each update moved it."
 
 
 def _training_section(context: ReportContext, history: TrainingHistory) -> str:
@@ -173,8 +198,7 @@ def _training_section(context: ReportContext, history: TrainingHistory) -> str:
                          "(grey dots: single episodes; red: trailing moving average), lap-completion rate, and the greedy evaluation laps run after each iteration."))
     if history.losses:
         plot_losses(history, context.out_dir / "losses.png", style)
-        parts.append(_figure("losses.png", "Learner statistics per iteration (red: moving average). PPO: "
-                             "entropy falls as the policy grows sure; approx_kl is how far each update moved it."))
+        parts.append(_figure("losses.png", losses_caption(context.metadata.get("training_algorithm"))))
     else:
         parts.append(_note("No learner statistics (metrics/laplab-iterations.json is absent)."))
     return "".join(parts) + "</section>"

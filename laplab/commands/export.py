@@ -25,6 +25,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     export.add_argument("model", metavar="MODEL", help="name of the model")
     export.add_argument("--format", choices=("tar", "onnx", "car", "console"), default="tar", help="what to write (default: tar)")
     export.add_argument("--checkpoint", default="best", help="'best' (default), 'last' or a checkpoint file name")
+    export.add_argument("--full-state", action="store_true",
+                        help="tar: add the optimizer state and target networks (with --checkpoint last) so "
+                             "`laplab train --resume` continues exactly on another machine; by default an "
+                             "archive carries the weights only")
     export.add_argument("--out", type=Path, help="tar, car: the archive file or a folder for it (default "
                                                  "./MODEL.tar.gz); onnx: the folder (default ./MODEL-onnx); "
                                                  "console: a new or empty folder (default ./MODEL-console)")
@@ -126,7 +130,7 @@ def _export(args: argparse.Namespace) -> int:
         print(f"wrote {result.onnx_path} and {result.metadata_path.name}{check}")
         return 0
     try:
-        path = export_model_archive(args.model, args.checkpoint, args.out)
+        path = export_model_archive(args.model, args.checkpoint, args.out, full_state=args.full_state)
     except ArchiveError as exc:
         raise UserError(str(exc)) from None
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")

@@ -4,7 +4,9 @@ An archive holds a subset of the model folder, at the same paths (see docs/car.m
 
     laplab-export.json                 manifest: format, version, model name, checkpoint, sha256 per file
     model/model_metadata.json
-    model/<iteration>_Step-<steps>.ckpt  the exported checkpoint (the full learner state)
+    model/<iteration>_Step-<steps>.ckpt  the exported checkpoint (the networks' weights)
+    model/<...>.ckpt.resume            only with full_state: optimizer state and target networks, so
+                                       `laplab train --resume` continues exactly (the last checkpoint only)
     model/deepracer_checkpoints.json   best and last both name that checkpoint
     ip/hyperparameters.json
     reward_function.py
@@ -51,6 +53,7 @@ _FIXED_MEMBERS = ("model/model_metadata.json", "model/deepracer_checkpoints.json
                   "reward_function.py", "laplab.json")
 _OPTIONAL_MEMBERS = ("metrics/TrainingMetrics.json", "metrics/laplab-iterations.json")
 _CHECKPOINT_MEMBER = re.compile(r"model/[0-9]+_Step-[0-9]+\.ckpt")
+_RESUME_MEMBER = re.compile(r"model/[0-9]+_Step-[0-9]+\.ckpt\.resume")
 
 
 class ArchiveError(ValueError):
@@ -79,9 +82,11 @@ def _tar_info(name: str, size: int, mtime: float) -> tarfile.TarInfo:
 
 
 def export_model_archive(name: str, checkpoint: str = "best", out: str | os.PathLike | None = None,
-                         verify: Callable[[BinaryIO, str], None] | None = None) -> Path:
+                         verify: Callable[[BinaryIO, str], None] | None = None, full_state: bool = False) -> Path:
     """Pack model ``name`` at ``checkpoint`` ('best', 'last' or a file name) into the file ``out``
     (default, or when ``out`` is a folder: ``<name>.tar.gz`` in it / here), written atomically.
+    The archive carries the checkpoint's weights; ``full_state`` adds its resume state (optimizers,
+    target networks: the last checkpoint has one), for moving a job between machines.
 
     Every member is read once and packed from those bytes, so a job training the model meanwhile
     cannot make the manifest disagree with the archive. ``verify(handle, where)`` checks the opened
@@ -115,6 +120,15 @@ def export_model_archive(name: str, checkpoint: str = "best", out: str | os.Path
         raise ArchiveError(f"model {name!r} lacks {missing} in {folder.root}; it cannot be exported "
                            "(was it created by laplab train?)")
     members[f"model/{checkpoint_name}"] = checkpoint_bytes
+    if full_state:
+        try:
+            members[f"model/{checkpoint_name}.resume"] = store.resume_path(checkpoint_name).read_bytes()
+        except FileNotFoundError:
+            last = store.last()
+            raise ArchiveError(f"checkpoint {checkpoint_name} of model {name!r} has no resume state (optimizers, "
+                               f"target networks): only the last checkpoint has one "
+                               f"({last.name if last else 'none yet'}); export --checkpoint last, or leave out "
+                               f"the full state. Nothing was written.") from None
     manifest = {"format": ARCHIVE_FORMAT, "version": ARCHIVE_VERSION, "name": name,
                 "checkpoint": checkpoint_name, "laplab_version": __version__, "exported_at": now,
                 "files": {m: {"sha256": hashlib.sha256(b).hexdigest(), "size": len(b)} for m, b in members.items()}}
@@ -158,7 +172,8 @@ def _check_members(archive: Path, tar: tarfile.TarFile) -> dict[str, tarfile.Tar
         if not info.isfile():
             raise ArchiveError(f"{archive}: member {name!r} is a link or a special file; a model archive holds "
                                "regular files only.")
-        if clean not in _FIXED_MEMBERS + _OPTIONAL_MEMBERS + (MANIFEST,) and not _CHECKPOINT_MEMBER.fullmatch(clean):
+        if (clean not in _FIXED_MEMBERS + _OPTIONAL_MEMBERS + (MANIFEST,) and not _CHECKPOINT_MEMBER.fullmatch(clean)
+                and not _RESUME_MEMBER.fullmatch(clean)):
             raise ArchiveError(f"{archive}: unexpected member {name!r}; a laplab model archive holds only "
                                f"{MANIFEST}, {', '.join(_FIXED_MEMBERS + _OPTIONAL_MEMBERS)} and one model/*.ckpt.")
         if clean in members:
@@ -184,6 +199,9 @@ def _read_manifest(archive: Path, tar: tarfile.TarFile, members: dict[str, tarfi
     if not (isinstance(listed, dict) and isinstance(checkpoint, str) and CHECKPOINT_NAME_PATTERN.fullmatch(checkpoint)):
         raise ArchiveError(f"{archive}: {MANIFEST} lacks a valid 'files' table or 'checkpoint' name.")
     present = set(members) - {MANIFEST}
+    stray = [m for m in present if _RESUME_MEMBER.fullmatch(m) and m != f"model/{checkpoint}.resume"]
+    if stray:
+        raise ArchiveError(f"{archive}: {stray[0]} is the resume state of another checkpoint than {checkpoint}.")
     expected = set(_FIXED_MEMBERS) | {f"model/{checkpoint}"}
     missing, unlisted = sorted((set(listed) | expected) - present), sorted(present - set(listed))
     if missing or unlisted:

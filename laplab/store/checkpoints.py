@@ -6,11 +6,17 @@ opaque here: the caller passes bytes, or a callable writing to a path (`lambda p
 torch.save(state, p)`), so this module needs no torch. The newest `keep_last` checkpoints plus
 the best one are kept; older ones are deleted after each save.
 
+A checkpoint file holds the networks' weights. What resuming needs besides (optimizer state, target
+networks) is written beside the *last* checkpoint only, as `model/<iteration>_Step-<steps>.ckpt.resume`
+(`resume_path`), and deleted when a newer checkpoint takes over: the folder carries one copy of the
+optimizer state, not one per checkpoint (docs/model-folder.md).
+
 `model/deepracer_checkpoints.json` = `{"best_checkpoint": {"name", "avg_eval_metric",
 "time_stamp"}, "last_checkpoint": {...}}`, rewritten atomically. The best is chosen as the
 simapp does: a checkpoint whose metric is at least (for laptime: at most) the best's so far
 takes over, ties going to the newer one; a checkpoint without a metric becomes best only
-when there is none yet. laplab adds one rule: on a tie, when both checkpoints carry the mean
+when there is none yet or the best has no metric either (more training beats none: a first
+iteration cut short by the time limit replaces the untrained checkpoint 0). laplab adds one rule: on a tie, when both checkpoints carry the mean
 lap time of their evaluation laps (`avg_eval_lap_time`, an extra key), the faster one wins, so
 among checkpoints that all lap the best is the quickest rather than the newest.
 """
@@ -30,6 +36,7 @@ from laplab.store.layout import ModelFolder
 from laplab.store.metrics import BEST_MODEL_METRICS
 
 CHECKPOINT_NAME_PATTERN = re.compile(r"([0-9]+)_Step-([0-9]+)\.ckpt")
+RESUME_SUFFIX = ".resume"
 
 
 @dataclass(frozen=True)
@@ -134,10 +141,10 @@ class CheckpointStore:
     def _is_better(self, metric: float | None, best: CheckpointRecord | None, lap_time: float | None = None) -> bool:
         if best is None or not (self.folder.model_dir / best.name).exists():
             return True
-        if metric is None:
-            return False
         if best.avg_eval_metric is None:
             return True
+        if metric is None:
+            return False
         if metric == best.avg_eval_metric and lap_time is not None and best.avg_eval_lap_time is not None:
             return lap_time <= best.avg_eval_lap_time
         if self.params.best_model_metric == "laptime":
@@ -150,26 +157,27 @@ class CheckpointStore:
             "last_checkpoint": None if last is None else last.as_json(),
         })
 
+    def resume_path(self, name: str) -> Path:
+        """Where the resume state of checkpoint ``name`` lives (present for the last one only)."""
+        return self.folder.model_dir / (name + RESUME_SUFFIX)
+
     def save(self, payload: bytes | Callable[[Path], object], *, iteration: int, steps: int,
              metric: float | None = None, time_stamp: float | None = None,
-             lap_time: float | None = None) -> Path:
+             lap_time: float | None = None, resume: bytes | Callable[[Path], object] | None = None) -> Path:
         """Write a checkpoint atomically, update deepracer_checkpoints.json, prune old ones.
 
         payload: the checkpoint bytes, or a callable writing the checkpoint to the path it is
         given. metric: the checkpoint's mean evaluation metric (None if not evaluated yet; see
         `record_metric`). lap_time: the mean lap time of its evaluation laps, s, when they all
-        lapped (breaks ties of the metric). Returns the checkpoint's path.
+        lapped (breaks ties of the metric). resume: the state resuming needs besides (bytes or a
+        writer, as payload), kept while this is the last checkpoint. Returns the checkpoint's path.
         """
         name = checkpoint_name(iteration, steps)
         value, lap_time = _check_metric(metric), _check_metric(lap_time)
         path = self.folder.model_dir / name
-        if isinstance(payload, (bytes, bytearray, memoryview)):
-            atomic_write_bytes(path, payload)
-        elif callable(payload):
-            atomic_write_with(path, payload)
-        else:
-            raise TypeError(f"checkpoint payload must be bytes or a callable writing to a path, "
-                            f"got {type(payload).__name__}")
+        if resume is not None:  # first, so the index never names a last checkpoint whose resume state is missing
+            _write_payload(self.resume_path(name), resume)
+        _write_payload(path, payload)
         record = CheckpointRecord(name, value, time.time() if time_stamp is None else float(time_stamp), lap_time)
         best, _ = self._records()
         self._write_records(record if self._is_better(value, best, lap_time) else best, record)
@@ -191,11 +199,14 @@ class CheckpointStore:
 
     def _prune(self) -> None:
         names = self.names()
-        best = self.best()
+        best, last = self._records()
         keep = set(names[-self.params.keep_last:]) | ({best.name} if best is not None else set())
         for name in names:
             if name not in keep:
                 (self.folder.model_dir / name).unlink(missing_ok=True)
+        for path in self.folder.model_dir.glob("*" + RESUME_SUFFIX):
+            if last is None or path.name != last.name + RESUME_SUFFIX:
+                path.unlink(missing_ok=True)
 
     def resolve(self, which: str = "best") -> Path:
         """Path of the 'best' or 'last' checkpoint, or of the checkpoint named `which`."""
@@ -212,3 +223,13 @@ class CheckpointStore:
             raise FileNotFoundError(f"checkpoint {name!r} not found in {str(self.folder.model_dir)!r}; "
                                     f"available: {self.names()} (or 'best', 'last')")
         return path
+
+
+def _write_payload(path: Path, payload: bytes | Callable[[Path], object]) -> None:
+    if isinstance(payload, (bytes, bytearray, memoryview)):
+        atomic_write_bytes(path, payload)
+    elif callable(payload):
+        atomic_write_with(path, payload)
+    else:
+        raise TypeError(f"checkpoint payload must be bytes or a callable writing to a path, "
+                        f"got {type(payload).__name__}")

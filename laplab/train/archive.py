@@ -26,8 +26,10 @@ from laplab.train.errors import JobError
 IMPORT_RECORD = "laplab-import.json"
 
 
-def export_model_archive(name: str, checkpoint: str = "best", out: str | os.PathLike | None = None) -> Path:
-    """:func:`laplab.store.archive.export_model_archive` after checking that the checkpoint loads."""
+def export_model_archive(name: str, checkpoint: str = "best", out: str | os.PathLike | None = None,
+                         full_state: bool = False) -> Path:
+    """:func:`laplab.store.archive.export_model_archive` after checking that the checkpoint loads
+    (``full_state``: with the last checkpoint's resume state)."""
     from laplab.train.checkpoint_read import load_state
 
     def verify(handle: BinaryIO, where: str) -> None:
@@ -36,7 +38,7 @@ def export_model_archive(name: str, checkpoint: str = "best", out: str | os.Path
         except CorruptFileError as exc:
             raise ArchiveError(f"{exc} Nothing was written.") from None
 
-    return store_archive.export_model_archive(name, checkpoint, out, verify=verify)
+    return store_archive.export_model_archive(name, checkpoint, out, verify=verify, full_state=full_state)
 
 
 def import_model_archive(path: str | os.PathLike, name: str | None = None) -> ImportedModel:

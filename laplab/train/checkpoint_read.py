@@ -50,3 +50,24 @@ def read_checkpoint(folder: ModelFolder, which: str = "best") -> tuple[str, dict
     name, handle = open_checkpoint(folder, which)
     with handle:
         return name, load_state(handle, name, str(folder.model_dir / name))
+
+
+def read_resume_state(folder: ModelFolder) -> tuple[str, dict]:
+    """``(file name, state)`` of the last checkpoint with its resume state (optimizers, targets) folded
+    in when the folder has it; without it (an imported model, an older folder) the state holds what the
+    checkpoint holds and the learner starts fresh optimizers."""
+    from laplab.train.trainer import merge_resume_state
+    name, state = read_checkpoint(folder, "last")
+    resume_path = CheckpointStore(folder).resume_path(name)
+    try:
+        handle = open(resume_path, "rb")  # noqa: SIM115 - closed below
+    except FileNotFoundError:
+        return name, state
+    with handle:
+        try:
+            import torch
+            resume = torch.load(handle, map_location="cpu", weights_only=True)
+        except Exception as exc:  # noqa: BLE001 - a damaged file: say which, resume from the weights
+            raise CorruptFileError(f"resume state {str(resume_path)!r} is damaged ({type(exc).__name__}); delete it "
+                                   f"to resume from the checkpoint's weights with fresh optimizers.") from None
+    return name, merge_resume_state(state, resume)

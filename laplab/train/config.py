@@ -48,6 +48,8 @@ class TrainConfig:
       ``reverse``. When given, ``track`` / ``reverse`` are the first of them.
     - ``workers``: rollout workers (``1``: in-process collection, no Ray; more: Ray actors, see
       :mod:`laplab.cluster`); the last session's count (``--resume --workers N`` changes it).
+    - ``cloned_from``: for a clone, the model and checkpoint its weights came from
+      (``"SOURCE (checkpoint NAME)"``); None for a model trained from scratch.
     """
 
     track: str = DEFAULT_TRACK
@@ -66,6 +68,7 @@ class TrainConfig:
     precision: str = "auto"
     tracks: tuple[str, ...] = ()
     workers: int = 1
+    cloned_from: str | None = None
     version: int = CONFIG_VERSION
 
     def __post_init__(self) -> None:

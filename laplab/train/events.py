@@ -40,6 +40,9 @@ class IterationReport:
     seconds: dict[str, float] = field(default_factory=dict)
     # mean progress of the evaluation laps per track of a multi-track job ({} with one track)
     eval_progress_by_track: dict[str, float] = field(default_factory=dict)
+    # the time limit or a stop request cut this iteration's learning or evaluation short: the checkpoint
+    # holds the (partly) trained networks, unevaluated (eval_episodes is 0)
+    partial: bool = False
 
 
 @dataclass(frozen=True)
@@ -62,8 +65,10 @@ class IterationEpisodes:
 
 @dataclass(frozen=True)
 class CheckpointReady:
-    """A checkpoint to keep: ``write(path)`` writes it (straight to the file: a camera checkpoint is
-    ~140 MB). ``metric``: mean progress of the iteration's evaluation laps (None for checkpoint 0);
+    """A checkpoint to keep: ``write(path)`` writes it (the networks' weights; straight to the file: a
+    camera network is tens of MB); ``write_resume(path)``, when given, writes what resuming from it
+    needs besides (optimizer state, target networks), kept for the last checkpoint only. ``metric``:
+    mean progress of the iteration's evaluation laps (None for checkpoint 0 and a partial iteration);
     ``lap_time``: their mean lap time when all of them lapped."""
 
     iteration: int
@@ -72,6 +77,23 @@ class CheckpointReady:
     metric: float | None
     lap_time: float | None
     write: Callable[[Any], None]
+    write_resume: Callable[[Any], None] | None = None
+
+
+@dataclass(frozen=True)
+class PhaseProgress:
+    """Where a running iteration stands, sent about once a second: ``phase`` is ``"collect"``
+    (``done`` / ``total`` episodes of the iteration's ``num_episodes_between_training``, ``env_steps``
+    driven so far in it), ``"learn"`` (``done`` / ``total`` gradient steps or minibatches; ``total`` 0
+    before the first) or ``"evaluate"`` (greedy evaluation laps done / run);
+    ``elapsed_s``: wall seconds since the job started."""
+
+    iteration: int
+    phase: str
+    done: int
+    total: int
+    env_steps: int
+    elapsed_s: float
 
 
 @dataclass(frozen=True)
@@ -88,6 +110,8 @@ class TrainerListener(Protocol):
     """Every method is optional; see the module docstring."""
 
     def on_poses(self, frame: PosesFrame) -> None: ...
+
+    def on_progress(self, progress: PhaseProgress) -> None: ...
 
     def on_episodes(self, episodes: IterationEpisodes) -> None: ...
 

@@ -20,7 +20,7 @@ from laplab.train.errors import JobError
 from laplab.track.geometry import Track
 from laplab.track.registry import load_track
 from laplab.train.archive import check_reward_trusted
-from laplab.train.checkpoint_read import read_checkpoint
+from laplab.train.checkpoint_read import read_checkpoint, read_resume_state
 from laplab.train.recorder import ModelFolderRecorder, RobomakerLogRecorder
 from laplab.train.trainer import Trainer, load_weights_only
 
@@ -163,7 +163,7 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
         track = job_track(config)
         reward_fn = load_and_validate_reward(config, track, folder.reward_function)
         if CheckpointStore(folder).names():
-            _, state = read_checkpoint(folder, "last")
+            _, state = read_resume_state(folder)
         else:  # killed before its first checkpoint was written: start again from scratch
             state = None
         if folder.error_file.exists():
@@ -204,8 +204,8 @@ def clone_config(source: str, overrides: dict, trust_reward: bool = False) -> tu
                 raise JobError(f"a clone keeps its source's {what}: {source!r} has {_show(a)}, the new "
                                f"model_metadata.json asks for {_show(b)}.")
     config = replace(base, **{k: v for k, v in overrides.items() if v is not None})
-    _, state = read_checkpoint(folder, "best")
-    return config, state["learner"]
+    name, state = read_checkpoint(folder, "best")
+    return replace(config, cloned_from=f"{source} (checkpoint {name})"), state["learner"]
 
 
 def _show(value) -> str:

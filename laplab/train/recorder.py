@@ -91,7 +91,8 @@ class ModelFolderRecorder:
 
     def on_checkpoint(self, checkpoint: CheckpointReady) -> None:
         self.checkpoints.save(checkpoint.write, iteration=checkpoint.iteration, steps=checkpoint.env_steps,
-                              metric=checkpoint.metric, lap_time=checkpoint.lap_time)
+                              metric=checkpoint.metric, lap_time=checkpoint.lap_time,
+                              resume=checkpoint.write_resume)
 
     def on_iteration(self, report: IterationReport) -> None:
         self._iteration_rows.append(asdict(report))

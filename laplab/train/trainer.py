@@ -26,11 +26,12 @@ from laplab.sim.state import EpisodeParams
 from laplab.track.geometry import Track
 from laplab.train.collect import CollectionAborted, EpisodeBatch, collect_episodes
 from laplab.train.config import TrainConfig
-from laplab.train.events import CheckpointReady, IterationEpisodes, IterationReport, PosesFrame
+from laplab.sim.state import IN_PROGRESS
+from laplab.train.events import CheckpointReady, IterationEpisodes, IterationReport, PhaseProgress, PosesFrame
 from laplab.vehicle.params import vehicle_preset
 
 __all__ = ["IterationReport", "TrainResult", "Trainer", "build_learner", "checkpoint_writer", "load_checkpoint",
-           "load_weights_only"]
+           "load_weights_only", "merge_resume_state", "resume_writer"]
 
 
 @dataclass
@@ -45,6 +46,17 @@ class TrainResult:
 
 
 Callback = Callable[[IterationReport], None]
+PROGRESS_INTERVAL_S = 1.0  # PhaseProgress events come at most this often
+
+
+def _no_episodes(like: EpisodeBatch) -> EpisodeBatch:
+    """An evaluation of zero episodes (a partial iteration runs no evaluation laps)."""
+    empty = np.zeros((0, 0))
+    per_episode = np.zeros(0)
+    return EpisodeBatch(None, empty, empty, empty, empty, empty.astype(bool), empty.astype(bool), empty.astype(bool),
+                        empty, per_episode, per_episode, per_episode.astype(like.status.dtype),
+                        per_episode.astype(like.steps.dtype), per_episode, per_episode,
+                        {key: value[:0] for key, value in like.trace.items()}, 0.0)
 
 
 def build_learner(config: TrainConfig, seed: int, precision: str | None = None, device: str = "cpu") -> Learner:
@@ -54,11 +66,27 @@ def build_learner(config: TrainConfig, seed: int, precision: str | None = None, 
 
 
 def checkpoint_writer(learner: Learner, iteration: int, env_steps: int, episodes: int, best_lap_time: float | None):
-    """A checkpoint (the learner's state plus where the job stood: what ``--resume`` continues from),
-    as a function that writes it to a path (straight to the file: a camera checkpoint is ~140 MB)."""
-    state = {"learner": learner.state_dict(), "iteration": iteration, "env_steps": env_steps,
+    """A checkpoint (the learner's weights plus where the job stood), as a function that writes it to
+    a path (straight to the file: a camera network's weights are tens of MB). Optimizer state and
+    target networks are not in it: see :func:`resume_writer`."""
+    state = {"learner": learner.weights_state(), "iteration": iteration, "env_steps": env_steps,
              "episodes": episodes, "best_lap_time": best_lap_time}
     return lambda path: torch.save(state, path)
+
+
+def resume_writer(learner: Learner):
+    """What ``--resume`` needs beyond a checkpoint's weights (optimizers, target networks), as a
+    function writing it to a path; kept for the last checkpoint only (:func:`merge_resume_state`)."""
+    weights = learner.weights_state()
+    extra = {key: value for key, value in learner.state_dict().items() if key not in weights}
+    return lambda path: torch.save({"learner": extra}, path)
+
+
+def merge_resume_state(state: dict, resume: dict | None) -> dict:
+    """A checkpoint's state with its resume state (from :func:`resume_writer`) folded in."""
+    if not resume:
+        return state
+    return {**state, "learner": {**state["learner"], **resume.get("learner", {})}}
 
 
 def load_weights_only(learner: Learner, state: dict) -> None:
@@ -107,6 +135,7 @@ class Trainer:
         self.collector = None
         self.evaluator = None
         self.iteration, self.env_steps, self.episodes, self.best_lap = 0, 0, 0, None
+        self._last_progress = float("-inf")
         if resume_from is not None:
             self.learner.load_state_dict(resume_from["learner"])
             self.iteration = int(resume_from["iteration"])
@@ -129,12 +158,29 @@ class Trainer:
             if handler is not None:
                 handler(payload)
 
-    def _poses_hook(self):
-        """The collection's per-step hook, or None when nobody listens (then no poses are copied)."""
-        if all(getattr(listener, "on_poses", None) is None for listener in self._listeners):
-            return None
+    def _poses_hook(self, started: float):
+        """The collection's per-step hook: poses for those who listen (none copied otherwise) and,
+        about once a second, the episodes done so far (:class:`PhaseProgress`)."""
         iteration = self.iteration + 1
-        return lambda poses, sim_time: self._emit("on_poses", PosesFrame(iteration, poses, sim_time))
+        wants_poses = any(getattr(listener, "on_poses", None) is not None for listener in self._listeners)
+        total = self.sim.num_cars
+        self._progress(started, "collect", 0, total, 0, force=True)
+
+        def hook(poses, sim_time) -> None:
+            if wants_poses:
+                self._emit("on_poses", PosesFrame(iteration, poses, sim_time))
+            state = self.sim.state
+            self._progress(started, "collect", int((state.status != IN_PROGRESS).sum()), total, int(state.steps.sum()))
+        return hook
+
+    def _progress(self, started: float, phase: str, done: int, total: int, env_steps: int = 0,
+                  force: bool = False) -> None:
+        """Emit :class:`PhaseProgress` at most once a second (always when ``force``)."""
+        now = time.perf_counter()
+        if force or now - self._last_progress >= PROGRESS_INTERVAL_S:
+            self._last_progress = now
+            iteration = self.iteration if phase == "evaluate" else self.iteration + 1  # evaluation follows the count
+            self._emit("on_progress", PhaseProgress(iteration, phase, done, total, env_steps, now - started))
 
     # -- one iteration -------------------------------------------------------------------------
 
@@ -146,28 +192,53 @@ class Trainer:
             return step.action, step.env_action, step.log_prob, step.value
         return act
 
-    def _collect(self, should_abort) -> EpisodeBatch:
-        if self.collector is not None:
+    def _collect(self, should_abort, started: float) -> EpisodeBatch:
+        if self.collector is not None:  # rollout workers (laplab.cluster)
+            self._progress(started, "collect", 0, self.hp.num_episodes_between_training, force=True)
             return self.collector.collect(self, should_abort)
         return collect_episodes(self.stepper, self.observations, self._policy(False), self.learner.values,
-                                should_abort=should_abort, on_poses=self._poses_hook())
+                                should_abort=should_abort, on_poses=self._poses_hook(started))
 
-    def _evaluate(self) -> EpisodeBatch:
-        if self.evaluator is not None:
+    def _learn(self, batch: EpisodeBatch, should_abort, started: float) -> tuple[dict, bool]:
+        """Train on ``batch`` until done or ``should_abort()`` -> (losses, whether it was cut short)."""
+        cut = []
+
+        def stop() -> bool:
+            if should_abort():
+                cut.append(True)
+                return True
+            return False
+        self._progress(started, "learn", 0, 0, batch.env_steps, force=True)
+        losses = self.learner.learn(batch, stop, lambda done, total: self._progress(
+            started, "learn", done, total, batch.env_steps))
+        return losses, bool(cut)
+
+    def _evaluate(self, should_abort=None, started: float | None = None) -> EpisodeBatch:
+        if self.evaluator is not None:  # every track of a multi-track job (laplab.cluster)
             return self.evaluator.evaluate(self._policy(True))
         starts = np.arange(self.config.eval_episodes) / self.config.eval_episodes
+        hook = None
+        if started is not None:
+            total = self.eval_sim.num_cars
+            self._progress(started, "evaluate", 0, total, force=True)
+
+            def hook(poses, sim_time) -> None:
+                state = self.eval_sim.state
+                self._progress(started, "evaluate", int((state.status != IN_PROGRESS).sum()), total,
+                               int(state.steps.sum()))
         return collect_episodes(self.eval_stepper, self.eval_observations, self._policy(True),
-                                keep_observations=False, ndist=starts)
+                                keep_observations=False, ndist=starts, should_abort=should_abort, on_poses=hook)
 
     def _checkpoint(self, evaluation: EpisodeBatch | None) -> CheckpointReady:
         """This iteration's checkpoint; its metric is the mean progress of the evaluation laps, and when
         they all lapped their mean lap time breaks ties (the faster of two lapping checkpoints is best)."""
         write = checkpoint_writer(self.learner, self.iteration, self.env_steps, self.episodes, self.best_lap)
-        if evaluation is None:
-            return CheckpointReady(self.iteration, self.env_steps, self.episodes, None, None, write)
+        resume = resume_writer(self.learner)
+        if evaluation is None or len(evaluation.status) == 0:
+            return CheckpointReady(self.iteration, self.env_steps, self.episodes, None, None, write, resume)
         lap_time = float(evaluation.lap_time.mean()) if evaluation.completed.all() else None
         return CheckpointReady(self.iteration, self.env_steps, self.episodes, float(evaluation.progress.mean()),
-                               lap_time, write)
+                               lap_time, write, resume)
 
     def save_initial_checkpoint(self) -> None:
         """Checkpoint 0 (untrained weights): a brand-new folder is loadable from the start."""
@@ -193,17 +264,27 @@ class Trainer:
                 break
             t0 = time.perf_counter()
             deadline = started + cfg.max_time_s
+            out_of_time = lambda: should_stop() or time.perf_counter() >= deadline  # noqa: E731
             try:
-                batch = self._collect(lambda: should_stop() or time.perf_counter() >= deadline)
+                batch = self._collect(out_of_time, started)
                 if should_stop():  # a signal during collection: keep the last complete model
                     reason = "stopped"
                     break
                 t1 = time.perf_counter()
-                losses = self.learner.learn(batch)
+                # Learning stops at the limit too (SAC's gradient steps can take minutes): the partly
+                # trained networks are whole and become the last checkpoint, without evaluation laps.
+                losses, partial = self._learn(batch, out_of_time, started)
                 self.iteration += 1
                 self.env_steps += batch.env_steps
                 t2 = time.perf_counter()
-                evaluation = self._evaluate()
+                evaluation = None
+                if not partial:
+                    try:
+                        evaluation = self._evaluate(out_of_time, started)
+                    except CollectionAborted:  # the limit fell during the evaluation laps: keep the training
+                        partial = True
+                if evaluation is None:
+                    evaluation = _no_episodes(batch)
                 t3 = time.perf_counter()
             except CollectionAborted:  # the partial iteration is dropped; the last checkpoint stands
                 reason = "stopped" if should_stop() else "max_time"
@@ -214,7 +295,7 @@ class Trainer:
                 break
             self._emit("on_episodes", IterationEpisodes(self.iteration, self.episodes, batch, evaluation))
             self.episodes += len(batch.status)
-            eval_progress = float(evaluation.progress.mean())
+            eval_progress = float(evaluation.progress.mean()) if len(evaluation.status) else 0.0
             laps = np.concatenate([batch.lap_time, evaluation.lap_time])
             if np.isfinite(laps).any():
                 best = float(np.nanmin(laps))
@@ -232,10 +313,13 @@ class Trainer:
                 best_lap_time=self.best_lap, eval_lap_time=float(eval_laps.mean()) if eval_laps.size else None,
                 steps_per_second=(batch.env_steps + evaluation.env_steps) / max(wall, 1e-9),
                 elapsed_s=elapsed, time_left_s=max(cfg.max_time_s - elapsed, 0.0), losses=losses,
-                seconds=seconds, eval_progress_by_track=_progress_by_track(evaluation))
+                seconds=seconds, eval_progress_by_track=_progress_by_track(evaluation), partial=partial)
             self._emit("on_iteration", report)
             for callback in callbacks:
                 callback(report)
+            if partial:
+                reason = "stopped" if should_stop() else "max_time"
+                break
             if batch.total_reward.mean() >= hp.term_cond_avg_score:
                 reason = "avg_score"
                 break

@@ -32,21 +32,123 @@ def test_one_d_bandit_moves_to_the_optimum():
     assert q1[0] > q1[1] + 0.5
 
 
+CAMERA_AND_STATE = gym.spaces.Dict({"FRONT_FACING_CAMERA": gym.spaces.Box(0, 255, (1, 4, 4), np.uint8),
+                                     "STATE": gym.spaces.Box(-1, 1, (2,), np.float32)})
+
+
+def _frames(ids):
+    ids = np.asarray(ids)
+    return {"FRONT_FACING_CAMERA": np.broadcast_to(ids[:, None, None, None], (len(ids), 1, 4, 4)).astype(np.uint8),
+            "STATE": np.repeat(ids[:, None], 2, 1).astype(np.float32)}
+
+
 def test_replay_buffer_wraps_and_samples_dicts():
-    space = gym.spaces.Dict({"FRONT_FACING_CAMERA": gym.spaces.Box(0, 255, (1, 4, 4), np.uint8),
-                             "STATE": gym.spaces.Box(-1, 1, (2,), np.float32)})
-    buffer = ReplayBuffer(5, space, 2)
-    for start in (0, 3):  # 3 + 3 transitions into 5 slots: the oldest one is overwritten
+    buffer = ReplayBuffer(10, CAMERA_AND_STATE, 2)
+    for start in (0, 3):  # 3 + 3 independent transitions, 2 slots each, into 10 slots: the oldest is gone
         ids = np.arange(start, start + 3)
-        obs = {"FRONT_FACING_CAMERA": np.broadcast_to(ids[:, None, None, None], (3, 1, 4, 4)).astype(np.uint8),
-               "STATE": np.repeat(ids[:, None], 2, 1).astype(np.float32)}
-        buffer.add(obs, np.zeros((3, 2)), ids.astype(np.float32), obs, np.zeros(3))
-    assert len(buffer) == 5 and buffer.position == 1
-    assert sorted(buffer.rewards.tolist()) == [1, 2, 3, 4, 5]
+        buffer.add(_frames(ids), np.zeros((3, 2)), ids.astype(np.float32), _frames(ids + 100), np.zeros(3))
+    assert len(buffer) == 5 and buffer.position == 2
+    assert sorted(buffer.rewards[buffer.starts].tolist()) == [1, 2, 3, 4, 5]
     batch = buffer.sample(32, np.random.default_rng(0))
     assert batch.observations["FRONT_FACING_CAMERA"].dtype == np.uint8
     np.testing.assert_array_equal(batch.observations["STATE"][:, 0], batch.rewards)
     np.testing.assert_array_equal(batch.observations["FRONT_FACING_CAMERA"][:, 0, 0, 0], batch.rewards)
+    np.testing.assert_array_equal(batch.next_observations["STATE"][:, 0], batch.rewards + 100)
+
+
+def test_replay_buffer_stores_each_frame_once_and_links_next_frames():
+    buffer = ReplayBuffer(8, CAMERA_AND_STATE, 2)
+    assert not hasattr(buffer, "next_observations")  # no second copy of the frames
+    # episode A: 4 steps, off track at the last; episode B: 5 steps, so the ring wraps (9 frames, 8 slots)
+    buffer.add_episode(_frames([10, 11, 12, 13]), np.zeros((4, 2)), [10, 11, 12, 13], [0, 0, 0, 1])
+    buffer.add_episode(_frames([20, 21, 22, 23, 24]), np.zeros((5, 2)), [20, 21, 22, 23, 24], [0, 0, 0, 0, 1])
+    assert len(buffer) == 8  # frame 10 was overwritten by frame 24
+    batch = buffer.sample(400, np.random.default_rng(1))
+    frame = batch.observations["FRONT_FACING_CAMERA"][:, 0, 0, 0].astype(int)
+    following = batch.next_observations["FRONT_FACING_CAMERA"][:, 0, 0, 0].astype(int)
+    np.testing.assert_array_equal(frame, batch.rewards)
+    assert set(frame) == {11, 12, 13, 20, 21, 22, 23, 24}  # every stored transition is drawn
+    ends = batch.terminated == 1
+    assert set(frame[ends]) == {13, 24}
+    np.testing.assert_array_equal(following[~ends], frame[~ends] + 1)  # next frame = the following step's
+    np.testing.assert_array_equal(following[ends], frame[ends])  # unused placeholder: not bootstrapped
+
+
+def test_learner_learns_whole_episodes_into_the_buffer():
+    from laplab.train.collect import EpisodeBatch
+    learner = SACLearner(STATE, ONE_D, Hyperparameters(batch_size=32, num_epochs=3), "MLP", seed=0)
+    steps, cars = 30, 2
+    valid = np.ones((steps, cars), bool)
+    valid[20:, 1] = False  # car 1 went off track at step 19
+    terminated = np.zeros((steps, cars), bool)
+    terminated[19, 1] = terminated[29, 0] = True
+    obs = np.arange(steps * cars, dtype=np.float32).reshape(steps, cars, 1) / 100
+    zeros = np.zeros((steps, cars), np.float32)
+    batch = EpisodeBatch(obs, np.zeros((steps, cars, 1), np.float32), zeros, zeros, zeros + 1, terminated,
+                         np.zeros((steps, cars), bool), valid, zeros, *(np.zeros(cars),) * 6, {}, 0.0)
+    stats = learner.learn(batch)
+    assert len(learner.buffer) == 50 and learner.buffer.filled == 50
+    assert stats["num_gradient_steps"] == 3 * 2  # 3 epochs x ceil(50 / 32)
+
+
+def test_gradient_step_runs_each_trunk_once_and_moves_targets_in_place():
+    learner = SACLearner(STATE, ONE_D, Hyperparameters(batch_size=32), "MLP", seed=0)
+    obs = np.linspace(-1, 1, 40, dtype=np.float32)[:, None]
+    learner.observe(obs, learner.act(obs).action, obs[:, 0], obs, np.zeros(40))
+    calls = {"actor": 0, "critic": 0, "target": 0}
+    for name, module in (("actor", learner.actor.trunk), ("critic", learner.critic.trunk),
+                         ("target", learner.target_critic.trunk)):
+        module.register_forward_hook(lambda *_, name=name: calls.__setitem__(name, calls[name] + 1))
+    target_before = [p.detach().clone() for p in learner.target_critic.parameters()]
+    target_storage = [p.data_ptr() for p in learner.target_critic.parameters()]
+    learner.update(1)
+    assert calls == {"actor": 2, "critic": 1, "target": 1}  # s' and s for the actor; one critic pass for both heads
+    for before, after, critic in zip(target_before, learner.target_critic.parameters(), learner.critic.parameters()):
+        torch.testing.assert_close(after, before + 0.005 * (critic - before))
+    assert [p.data_ptr() for p in learner.target_critic.parameters()] == target_storage
+
+
+def test_update_stops_when_asked_and_reports_progress():
+    learner = SACLearner(STATE, ONE_D, Hyperparameters(batch_size=32), "MLP", seed=0)
+    obs = np.linspace(-1, 1, 40, dtype=np.float32)[:, None]
+    learner.observe(obs, learner.act(obs).action, obs[:, 0], obs, np.zeros(40))
+    seen = []
+    stats = learner.update(10, should_stop=lambda: len(seen) >= 4, on_progress=lambda d, t: seen.append((d, t)))
+    assert stats["num_gradient_steps"] == 4 and learner.gradient_steps == 4
+    assert seen == [(1, 10), (2, 10), (3, 10), (4, 10)]
+    assert learner.update(5, should_stop=lambda: True)["num_gradient_steps"] == 0
+
+
+def test_weights_state_holds_no_optimizer_and_restores_the_policy():
+    learner = SACLearner(STATE, ONE_D, Hyperparameters(batch_size=32), "MLP", seed=0)
+    obs = np.linspace(-1, 1, 40, dtype=np.float32)[:, None]
+    learner.observe(obs, learner.act(obs).action, obs[:, 0], obs, np.ones(40))
+    learner.update(3)
+    weights = learner.weights_state()
+    assert set(weights) >= {"actor", "critic"} and not {"target_critic", "actor_optimizer"} & set(weights)
+    restored = SACLearner(STATE, ONE_D, Hyperparameters(batch_size=32), "MLP", seed=7)
+    restored.load_state_dict(weights)  # resuming an exported (weights-only) model: fresh optimizers
+    np.testing.assert_allclose(restored.act(obs, deterministic=True).env_action,
+                               learner.act(obs, deterministic=True).env_action)
+    for a, b in zip(restored.target_critic.parameters(), restored.critic.parameters()):
+        torch.testing.assert_close(a, b)
+
+
+def test_older_twin_q_layout_loads():
+    learner = SACLearner(STATE, ONE_D, Hyperparameters(batch_size=32), "MLP", seed=0)
+    critic = learner.critic.state_dict()
+    old = {}
+    for key, value in critic.items():  # the former layout: a trunk per head
+        if key.startswith("trunk."):
+            old["q1." + key] = value
+            old["q2." + key] = value + 1
+        else:
+            old[key[:2] + ".head" + key[2:]] = value
+    state = {**learner.state_dict(), "critic": old, "target_critic": old}
+    restored = SACLearner(STATE, ONE_D, Hyperparameters(batch_size=32), "MLP", seed=3)
+    restored.load_state_dict(state)
+    for key, value in restored.critic.state_dict().items():
+        torch.testing.assert_close(value, critic[key])
 
 
 def test_no_update_before_a_full_batch_and_discrete_rejected():
