@@ -40,6 +40,13 @@ def is_checkpoint(rel: str) -> bool:
     return rel.startswith("model/") and rel.endswith(".ckpt") and rel.count("/") == 1
 
 
+def checkpoint_of(rel: str) -> str | None:
+    """The checkpoint (``<i>_Step-<n>.ckpt``) that ``rel`` belongs to: the checkpoint file itself or the
+    resume state beside the last one (``model/<name>.ckpt.resume``); None for other files."""
+    rel = rel.removesuffix(".resume")
+    return rel.removeprefix("model/") if is_checkpoint(rel) else None
+
+
 def _hidden(rel: str) -> bool:
     return any(part.startswith(".") for part in rel.split("/"))
 
@@ -106,8 +113,9 @@ class RemoteModels:
                 for rel in sorted(files, key=lambda r: (r == INDEX_NAME, r)):  # the index last
                     if rel.endswith("/") or _hidden(rel) or (include is not None and not include(rel)):
                         continue
-                    if is_checkpoint(rel) and rel.removeprefix("model/") not in names:
-                        continue
+                    owner = checkpoint_of(rel)
+                    if owner is not None and owner not in names:
+                        continue  # another checkpoint, or its resume state (only --resume reads one)
                     if rel == INDEX_NAME and index is not None:
                         (folder.root / rel).parent.mkdir(parents=True, exist_ok=True)
                         (folder.root / rel).write_bytes(index)  # the index that named what was pulled
@@ -201,7 +209,7 @@ class FolderSync:
         if INDEX_NAME in current and self.known.get(INDEX_NAME) != current[INDEX_NAME]:
             index_bytes = _read(index_path)  # snapshot: the checkpoints it names exist locally now
         # Checkpoint data first, then the other files, the index last (it names the checkpoints).
-        changed.sort(key=lambda rel: (not is_checkpoint(rel), rel))
+        changed.sort(key=lambda rel: (checkpoint_of(rel) is None, rel))
         uploaded = 0
         for rel in changed:
             path = self.folder.root / rel

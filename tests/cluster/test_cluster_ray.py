@@ -62,10 +62,10 @@ def test_two_track_job_trains_on_policy_and_writes_each_workers_simtrace(local_r
     versions_seen = []
     learn = trainer.learner.learn
 
-    def checked_learn(batch):  # every transition of every PPO batch: the current policy version
+    def checked_learn(batch, *args, **kwargs):  # every transition of every PPO batch: the current version
         per_step = np.broadcast_to(batch.policy_version, batch.valid.shape)[batch.valid]
         versions_seen.append((trainer.iteration, set(per_step.tolist())))
-        return learn(batch)
+        return learn(batch, *args, **kwargs)
     trainer.learner.learn = checked_learn
     reports = []
     with attach_workers(trainer, 2):

@@ -20,3 +20,11 @@ def test_the_command_line_does_not_import_boto3_without_a_store():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=PACKAGE.parent,
                          env={"PYTHONPATH": str(PACKAGE.parent), "PATH": "/usr/bin:/bin"})
     assert out.stdout.strip() == "False", out.stderr[-2000:]
+
+
+def test_a_checkpoints_resume_state_travels_with_it():
+    from laplab.store.remote import checkpoint_of
+    assert checkpoint_of("model/3_Step-112.ckpt") == "3_Step-112.ckpt"
+    assert checkpoint_of("model/3_Step-112.ckpt.resume") == "3_Step-112.ckpt"
+    assert checkpoint_of("model/model_metadata.json") is None
+    assert checkpoint_of("0/training-simtrace/3-iteration.csv") is None

@@ -43,8 +43,9 @@ class IndexWatcher(threading.Thread):
             present = {}
             for which in ("best_checkpoint", "last_checkpoint"):
                 name = index[which]["name"]
-                listed = self.client.list_objects_v2(Bucket=BUCKET, Prefix=f"{self.base}/model/{name}")
-                present[name] = listed.get("KeyCount", 0) == 1
+                key = f"{self.base}/model/{name}"  # (the last checkpoint has a .ckpt.resume beside it)
+                listed = self.client.list_objects_v2(Bucket=BUCKET, Prefix=key)
+                present[name] = any(item["Key"] == key for item in listed.get("Contents", []))
             self.seen[etag] = present
 
 
