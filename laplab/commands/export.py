@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,9 +30,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="tar: add the optimizer state and target networks (with --checkpoint last) so "
                              "`laplab train --resume` continues exactly on another machine; by default an "
                              "archive carries the weights only")
-    export.add_argument("--out", type=Path, help="tar, car: the archive file or a folder for it (default "
-                                                 "./MODEL.tar.gz); onnx: the folder (default ./MODEL-onnx); "
-                                                 "console: a new or empty folder (default ./MODEL-console)")
+    export.add_argument("--out", type=_out_path, help="tar, car: the archive file or a folder for it (default "
+                                                      "./MODEL.tar.gz); onnx: the folder (default ./MODEL-onnx); "
+                                                      "console: a new or empty folder (default ./MODEL-console) or "
+                                                      "an S3 prefix s3://BUCKET/PREFIX (as dr-upload-model uploads)")
     from laplab.commands.store_option import add_store_option
     add_store_option(export)
     export.set_defaults(func=export_command)
@@ -43,6 +45,30 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     imp.add_argument("file", type=Path, metavar="FILE.tar.gz")
     imp.add_argument("--name", help="name of the new model (default: the exported model's name)")
     imp.set_defaults(func=import_command)
+
+
+def _out_path(text: str) -> Path | str:
+    """``--out``: a local path, or an ``s3://`` URL kept as text (a Path would fold its '//')."""
+    return text if text.startswith("s3://") else Path(text)
+
+
+def _upload_console_folder(folder: Path, url: str) -> int:
+    """Upload the console layout in ``folder`` to the S3 prefix ``url`` (endpoint: AWS_ENDPOINT_URL):
+    the checkpoint's data first, the small files that name it (TensorFlow's state file,
+    .coach_checkpoint, deepracer_checkpoints.json) last, so that an importer never sees a name before
+    its data. Returns the number of files."""
+    from laplab.store.s3 import ObjectStore, StoreError, parse_store_url
+    naming = ("model/checkpoint", "model/.coach_checkpoint", "model/deepracer_checkpoints.json")
+    files = sorted((p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file()),
+                   key=lambda rel: (rel in naming, naming.index(rel) if rel in naming else 0, rel))
+    try:
+        store = ObjectStore(parse_store_url(url))
+        store.check()
+        for rel in files:
+            store.put_file(store.location.key(rel), folder / rel)
+    except StoreError as exc:
+        raise UserError(str(exc)) from None
+    return len(files)
 
 
 @dataclass(frozen=True)
@@ -98,13 +124,20 @@ def export_deepracer(args: argparse.Namespace) -> int:
             print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB: agent/model.pb from {graph.checkpoint}, "
                   f"model_metadata.json; max |TensorFlow - torch| = {graph.parity_error:.1e}). Upload it on the "
                   "car's device console (Models > Upload).")
+        elif isinstance(args.out, str):  # s3://BUCKET/PREFIX: written here first, checked, then uploaded
+            with tempfile.TemporaryDirectory(prefix="laplab-console-") as staging:
+                result = export_console(args.model, args.checkpoint, Path(staging) / args.model)
+                count = _upload_console_folder(result.folder, args.out)
+            print(f"uploaded {count} files to {args.out.rstrip('/')}/ (model/model_*.pb and rl_coach's TensorFlow "
+                  f"checkpoint model/{result.graph.checkpoint}.* ; max |TensorFlow - torch| = "
+                  f"{result.graph.parity_error:.1e}, |checkpoint - model.pb| = {result.checkpoint_error:.1e})")
         else:
             result = export_console(args.model, args.checkpoint, args.out)
             print(f"wrote {len(result.files)} files into {result.folder} (model/model_*.pb and rl_coach's "
                   f"TensorFlow checkpoint model/{result.graph.checkpoint}.* ; max |TensorFlow - torch| = "
                   f"{result.graph.parity_error:.1e}, |checkpoint - model.pb| = {result.checkpoint_error:.1e})")
-            for note in result.limitations:
-                print(f"note: {note}")
+        for note in (result.limitations if args.format == "console" else ()):
+            print(f"note: {note}")
     except (CarExportError, FileNotFoundError) as exc:
         raise UserError(str(exc)) from None
     return 0
@@ -121,6 +154,9 @@ def export_command(args: argparse.Namespace) -> int:
 def _export(args: argparse.Namespace) -> int:
     from laplab.store.archive import ArchiveError
     from laplab.train.archive import export_model_archive
+    if isinstance(args.out, str) and args.format != "console":
+        raise UserError(f"--out {args.out}: an S3 prefix takes --format console (the DeepRacer console's "
+                        "import layout); write the other formats to a local file or folder.")
     if args.format in ("car", "console"):
         return export_deepracer(args)
     if args.format == "onnx":

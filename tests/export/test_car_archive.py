@@ -214,3 +214,26 @@ def test_cli_writes_the_car_archive_and_the_console_folder(home, tmp_path, capsy
     assert main(["export", "cam", "--format", "console", "--out", str(tmp_path / "c")]) == 0
     assert (tmp_path / "c" / "model_metadata.json").is_file()
     assert main(["export", "absent", "--format", "car", "--out", str(tmp_path)]) == 2
+
+
+def test_console_layout_goes_to_an_s3_prefix(home, console, monkeypatch):
+    """--format console --out s3://BUCKET/PREFIX: the same files as the local layout, under the prefix,
+    on a real S3-compatible server (moto's, on 127.0.0.1)."""
+    moto_server = pytest.importorskip("moto.server")
+    boto3 = pytest.importorskip("boto3")
+    server = moto_server.ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    server.start()
+    try:
+        host, port = server.get_host_and_port()
+        for name, value in (("AWS_ENDPOINT_URL", f"http://{host}:{port}"), ("AWS_ACCESS_KEY_ID", "testing"),
+                            ("AWS_SECRET_ACCESS_KEY", "testing"), ("AWS_DEFAULT_REGION", "us-east-1")):
+            monkeypatch.setenv(name, value)
+        client = boto3.client("s3", endpoint_url=f"http://{host}:{port}")
+        client.create_bucket(Bucket="console-import")
+        assert main(["export", "cam", "--format", "console", "--out", "s3://console-import/upload/cam"]) == 0
+        keys = {item["Key"] for item in client.list_objects_v2(Bucket="console-import")["Contents"]}
+        local = {p.relative_to(console.folder).as_posix() for p in console.folder.rglob("*") if p.is_file()}
+        assert keys == {f"upload/cam/{rel}" for rel in local}
+        assert main(["export", "cam", "--format", "car", "--out", "s3://console-import/car.tar.gz"]) == 2
+    finally:
+        server.stop()
