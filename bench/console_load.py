@@ -32,6 +32,20 @@ TOKEN = "bench-admin-token"
 HYPERPARAMETERS = {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32}
 
 
+def wait_for_server(client: httpx.Client, path: str, timeout_s: float = 60.0) -> None:
+    """Poll ``path`` until the server answers 200 (it is starting up); exit after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            if client.get(path).status_code == 200:
+                return
+        except httpx.TransportError:
+            pass
+        if time.monotonic() > deadline:
+            raise SystemExit("the server did not start")
+        time.sleep(0.2)
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -84,16 +98,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
     headers = {"Authorization": f"Bearer {TOKEN}"}
     admin = httpx.Client(base_url=url, headers=headers, timeout=30)
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                if admin.get("/api/health").status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            if time.monotonic() > deadline:
-                raise SystemExit("the server did not start")
-            time.sleep(0.2)
+        wait_for_server(admin, "/api/health")
         marker = home / "sandbox" / "trusted-numba" / "laplab-warmup-done"
         warm_deadline = time.monotonic() + 600
         while not marker.exists() and time.monotonic() < warm_deadline:  # the server's one-off numba warm-up
@@ -180,16 +185,7 @@ def cpu_per_request(home: Path, seconds: float, clients: int, streams: int) -> N
     stop, latencies = threading.Event(), []
     try:
         with httpx.Client(base_url=url, headers=headers) as admin:
-            deadline = time.monotonic() + 60
-            while True:
-                try:
-                    if admin.get("/api/models").status_code == 200:
-                        break
-                except httpx.TransportError:
-                    pass
-                if time.monotonic() > deadline:
-                    raise SystemExit("the server did not start")
-                time.sleep(0.2)
+            wait_for_server(admin, "/api/models")
 
         def stream_client():
             with httpx.Client(base_url=url, headers=headers, timeout=httpx.Timeout(30, read=None)) as client:
