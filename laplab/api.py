@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -121,7 +122,8 @@ class TrainingJob:
         code = self.process.poll()
         if code is None:
             return RUNNING
-        return COMPLETED if code == 0 else STOPPED if code in (-2, -15, 130, 143) else FAILED
+        stopped = (-signal.SIGINT, -signal.SIGTERM, 128 + signal.SIGINT, 128 + signal.SIGTERM)
+        return COMPLETED if code == 0 else STOPPED if code in stopped else FAILED
 
     def wait(self, timeout: float | None = None) -> str:
         """Wait for the job to end (or ``timeout`` seconds) and return its status."""
@@ -134,7 +136,7 @@ class TrainingJob:
     def stop(self) -> str:
         """Ask the job to stop (as Ctrl-C: it keeps its last complete checkpoint) and wait for it."""
         if self.process.poll() is None:
-            self.process.send_signal(2)
+            self.process.send_signal(signal.SIGINT)
         return self.wait()
 
     def output(self, lines: int = 20) -> str:
