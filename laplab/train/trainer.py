@@ -169,16 +169,20 @@ class Trainer:
         def hook(poses, sim_time) -> None:
             if wants_poses:
                 self._emit("on_poses", PosesFrame(iteration, poses, sim_time))
-            state = self.sim.state
-            self._progress(started, "collect", int((state.status != IN_PROGRESS).sum()), total, int(state.steps.sum()))
+            if self._progress_due():  # counting the cars every step would be wasted work
+                state = self.sim.state
+                self._progress(started, "collect", int((state.status != IN_PROGRESS).sum()), total,
+                               int(state.steps.sum()))
         return hook
+
+    def _progress_due(self) -> bool:
+        return time.perf_counter() - self._last_progress >= PROGRESS_INTERVAL_S
 
     def _progress(self, started: float, phase: str, done: int, total: int, env_steps: int = 0,
                   force: bool = False) -> None:
         """Emit :class:`PhaseProgress` at most once a second (always when ``force``)."""
-        now = time.perf_counter()
-        if force or now - self._last_progress >= PROGRESS_INTERVAL_S:
-            self._last_progress = now
+        if force or self._progress_due():
+            now = self._last_progress = time.perf_counter()
             iteration = self.iteration if phase == "evaluate" else self.iteration + 1  # evaluation follows the count
             self._emit("on_progress", PhaseProgress(iteration, phase, done, total, env_steps, now - started))
 
@@ -223,9 +227,10 @@ class Trainer:
             self._progress(started, "evaluate", 0, total, force=True)
 
             def hook(poses, sim_time) -> None:
-                state = self.eval_sim.state
-                self._progress(started, "evaluate", int((state.status != IN_PROGRESS).sum()), total,
-                               int(state.steps.sum()))
+                if self._progress_due():
+                    state = self.eval_sim.state
+                    self._progress(started, "evaluate", int((state.status != IN_PROGRESS).sum()), total,
+                                   int(state.steps.sum()))
         return collect_episodes(self.eval_stepper, self.eval_observations, self._policy(True),
                                 keep_observations=False, ndist=starts, should_abort=should_abort, on_poses=hook)
 
