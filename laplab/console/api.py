@@ -240,6 +240,8 @@ def resume_model(name: str, request: Request, body: Resume | None = None, user: 
     max_time = body.max_time_s if body and body.max_time_s else None
     if max_time is not None and not (math.isfinite(max_time) and max_time > 0):
         raise bad_request(f"max time must be a positive number of seconds, got {max_time!r}", "max_time_s")
+    if max_time is None:  # the saved budget, named in the job so that its wall-clock limit follows from it
+        max_time = json.loads((models_dir() / name / "laplab.json").read_text()).get("max_time_s")
     owner = service.owners()[name]
     job = service.submit("resume", name, owner, {"max_time_s": max_time} if max_time else {})
     return {**service.describe(name), "job": job.to_dict()}
