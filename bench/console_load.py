@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import random
 import socket
 import statistics
 import subprocess
@@ -113,6 +114,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
         errors = [0]
 
         def api_client():
+            stop.wait(random.uniform(0, think))  # pages opened at different moments, not in lock-step
             with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
                 while not stop.is_set():
                     t0 = time.perf_counter()
@@ -195,6 +197,7 @@ def cpu_per_request(home: Path, seconds: float, clients: int, streams: int) -> N
                             return
 
         def api_client():
+            stop.wait(random.uniform(0, think))  # pages opened at different moments, not in lock-step
             with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
                 while not stop.is_set():
                     t0 = time.perf_counter()
@@ -228,7 +231,8 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=90.0, help="training time of each phase (default 90)")
     parser.add_argument("--clients", type=int, default=50)
     parser.add_argument("--streams", type=int, default=20)
-    parser.add_argument("--think", type=float, default=0.2, help="s each API client waits between requests")
+    parser.add_argument("--think", type=float, default=0.2,
+                        help="s each API client waits between requests (the console's Models page polls every 3 s)")
     parser.add_argument("--no-baseline", action="store_true", help="skip the trainings without the server")
     parser.add_argument("--cpu-per-request", action="store_true",
                         help="only the server's CPU per request: an idle model, --streams streams, --clients clients "

@@ -7,6 +7,7 @@ gets a 400 (or FastAPI's 422 for a malformed body) whose ``detail`` is laplab's 
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 from dataclasses import fields
@@ -165,13 +166,29 @@ def me(user: User = Depends(current_user)) -> dict:
 
 @router.get("/models", response_model=list[dict])
 async def list_models_route(request: Request, user: User = Depends(current_user)) -> Response:
-    """Your models (all of them for the admin), newest first; served from a list at most
-    ``LIST_TTL_S`` old, rebuilt in a worker thread (file stats and a few SQLite reads)."""
+    """Your models (all of them for the admin), newest first. Served from the last list built
+    (file stats and a few SQLite reads, in a worker thread): a list older than ``LIST_TTL_S`` is
+    answered at once and rebuilt in the background, so a burst of pages polling together never
+    queues behind a rebuild. A status change drops the list, and the next request waits for a new one."""
     service = _service(request)
-    body = service.cached_models_json(user)
+    body, fresh = service.cached_models_json(user)
     if body is None:
         body = await run_in_threadpool(service.visible_models_json, user)
+    elif not fresh and service.claim_list_refresh(user):
+        task = asyncio.create_task(_refresh_list(service, user))
+        _BACKGROUND.add(task)
+        task.add_done_callback(_BACKGROUND.discard)
     return Response(body, media_type="application/json")
+
+
+_BACKGROUND: set[asyncio.Task] = set()  # strong references: the event loop keeps only weak ones
+
+
+async def _refresh_list(service, user: User) -> None:
+    try:
+        await run_in_threadpool(service.visible_models_json, user)
+    finally:
+        service.list_refreshed(user)
 
 
 async def _validate_and_claim(request: Request, user: User, body: CloneModel, reward_source: str | None,

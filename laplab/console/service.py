@@ -154,6 +154,9 @@ class ConsoleService:
         self._poses_mtime: dict[int, int] = {}
         self.interrupted_at_start = store.interrupt_running()
         self._list_cache: dict[int, tuple[float, bytes]] = {}
+        self._list_lock = threading.Lock()
+        self._list_generation = 0
+        self._list_refreshing: set[int] = set()
         self._queue_changed, self._queue_checked = True, 0.0  # the queue is read when it may have changed
 
     # -- models ------------------------------------------------------------------------------------
@@ -199,24 +202,43 @@ class ConsoleService:
         user = self.store.user_by_id(user_id) if user_id is not None else None
         return user.name if user else None
 
-    def cached_models_json(self, user: User) -> bytes | None:
-        """The JSON of :meth:`visible_models_json` when a fresh one (at most ``LIST_TTL_S`` old) is at hand:
-        many pages and scripts polling at once cost one computation per interval, not one each."""
+    def cached_models_json(self, user: User) -> tuple[bytes | None, bool]:
+        """(the JSON of :meth:`visible_models_json` last built for ``user`` or None, whether it is at
+        most ``LIST_TTL_S`` old). A status change drops it; progress within a status may be
+        ``LIST_TTL_S`` plus one rebuild old."""
         hit = self._list_cache.get(user.id)
-        return hit[1] if hit is not None and time.monotonic() - hit[0] < LIST_TTL_S else None
+        if hit is None:
+            return None, False
+        return hit[1], time.monotonic() - hit[0] < LIST_TTL_S
 
     def visible_models_json(self, user: User) -> bytes:
-        """The models ``user`` sees, newest first, as JSON (computed at most once per ``LIST_TTL_S``; blocking)."""
-        cached = self.cached_models_json(user)
-        if cached is not None:
-            return cached
-        now = time.monotonic()
-        body = json.dumps(self._visible_models(user), separators=(",", ":")).encode()
-        self._list_cache[user.id] = (now, body)
-        return body
+        """The models ``user`` sees, newest first, as JSON (blocking). One build at a time: many
+        requests arriving together wait for the same build instead of each making their own."""
+        with self._list_lock:
+            body, fresh = self.cached_models_json(user)
+            if body is not None and fresh:
+                return body
+            now, generation = time.monotonic(), self._list_generation
+            body = json.dumps(self._visible_models(user), separators=(",", ":")).encode()
+            if generation == self._list_generation:
+                self._list_cache[user.id] = (now, body)
+            return body
+
+    def claim_list_refresh(self, user: User) -> bool:
+        """True once per stale list: the caller then rebuilds it in the background (see
+        :meth:`visible_models_json`), and :meth:`list_refreshed` releases the claim."""
+        if user.id in self._list_refreshing:
+            return False
+        self._list_refreshing.add(user.id)
+        return True
+
+    def list_refreshed(self, user: User) -> None:
+        self._list_refreshing.discard(user.id)
 
     def models_changed(self) -> None:
-        """Drop the cached model lists (a model was added or removed outside a job)."""
+        """Drop the cached model lists (a status changed, a model was added or removed); a build
+        that started before this is not kept."""
+        self._list_generation += 1
         self._list_cache.clear()
 
     def _visible_models(self, user: User) -> list[dict]:
@@ -238,14 +260,14 @@ class ConsoleService:
             shutil.rmtree(job_folder(job.id), ignore_errors=True)
         shutil.rmtree(models_dir() / name, ignore_errors=True)
         self.store.forget_model(name)
-        self._list_cache.clear()
+        self.models_changed()
         self.hub.streams.pop(name, None)
 
     # -- jobs ------------------------------------------------------------------------------------
 
     def submit(self, kind: str, model: str, owner: int, params: dict, reward_source: str | None = None) -> Job:
         job = self.store.add_job(kind, model, owner, params)
-        self._list_cache.clear()
+        self.models_changed()
         self._queue_changed = True
         folder = job_folder(job.id)
         folder.mkdir(parents=True, exist_ok=True)
@@ -265,7 +287,7 @@ class ConsoleService:
         self.runner.stop(job)
 
     def _publish_status(self, model: str, job_id: int, status: str, **extra) -> None:
-        self._list_cache.clear()
+        self.models_changed()
         self.hub.publish(model, "status", {"status": status, "job": job_id, **extra})
 
     def tick(self) -> None:

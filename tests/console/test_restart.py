@@ -3,6 +3,7 @@ and finish with loadable models, a queued job still runs, and SQLite is intact."
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import sqlite3
@@ -84,7 +85,8 @@ def test_sigkill_restart_interrupts_then_resumes(tmp_path, monkeypatch, numba_ca
         assert queued["status"] == "ready", queued
         for name in ("crash-a", "crash-b"):
             assert client.post(f"/api/models/{name}/resume", json={"max_time_s": 4}).status_code == 202
-        for name in ("crash-a", "crash-b"):
+        assert client.post("/api/models/crash-queued/resume").status_code == 202  # its saved 3 s budget
+        for name in ("crash-a", "crash-b", "crash-queued"):
             model = wait(client, name, lambda m: m["status"] in ("ready", "failed"))
             assert model["status"] == "ready", model
             assert model["iteration_count"] >= 1
@@ -94,6 +96,8 @@ def test_sigkill_restart_interrupts_then_resumes(tmp_path, monkeypatch, numba_ca
     db = sqlite3.connect(tmp_path / "laplab.db")
     assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     assert {r[0] for r in db.execute("SELECT status FROM jobs")} <= {"done", "interrupted"}
+    resumed = db.execute("SELECT params FROM jobs WHERE kind = 'resume' AND model = 'crash-queued'").fetchone()
+    assert json.loads(resumed[0])["max_time_s"] == 3  # named in the job, so the watchdog has a wall limit
     monkeypatch.setenv("LAPLAB_HOME", str(tmp_path))
     from laplab.train.policy import load_model_policy
     for name in ("crash-a", "crash-b", "crash-queued"):
