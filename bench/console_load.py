@@ -145,7 +145,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
 
         threads = [threading.Thread(target=api_client, daemon=True) for _ in range(clients)]
         threads += [threading.Thread(target=stream_client, args=(f"served-{i % 2}",), daemon=True) for i in range(streams)]
-        cpu_start = cpu_seconds(server.pid)
+        cpu_start, clients_start = cpu_seconds(server.pid), time.process_time()
         for t in threads:
             t.start()
         end = time.monotonic() + seconds + 600
@@ -155,12 +155,12 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
                 break
             time.sleep(1)
         stop.set()
-        cpu_end = cpu_seconds(server.pid)
+        cpu_end, clients_cpu = cpu_seconds(server.pid), time.process_time() - clients_start
         for t in threads:
             t.join(5)
         cpu = None if cpu_start is None or cpu_end is None else cpu_end - cpu_start
         return {"latencies": latencies, "deliveries": deliveries, "errors": errors[0], "statuses": statuses, "cpu": cpu,
-                "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)]}
+                "clients_cpu": clients_cpu, "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)]}
     finally:
         admin.close()
         server.terminate()
@@ -252,7 +252,8 @@ def main() -> None:
           f"p50 {1000 * percentile(lat, 50):.1f} ms, p99 {1000 * percentile(lat, 99):.1f} ms, errors {served['errors']}")
     if served["cpu"] is not None and lat:
         print(f"server CPU during the load: {served['cpu']:.1f} s, {1000 * served['cpu'] / len(lat):.2f} ms per "
-              f"GET /api/models answered (streams, scheduler and the other requests included)")
+              f"GET /api/models answered (streams, scheduler and the other requests included); the client "
+              f"threads' CPU (this process, same machine): {served['clients_cpu']:.1f} s")
     print(f"iteration events over {args.streams} streams: {len(dl)} delivered, p50 {1000 * percentile(dl, 50):.0f} ms, "
           f"p99 {1000 * percentile(dl, 99):.0f} ms, max {1000 * max(dl, default=float('nan')):.0f} ms")
     fmt = lambda xs: ", ".join("-" if x is None else f"{x:.1f}" for x in xs)  # noqa: E731

@@ -112,6 +112,8 @@ class JobStore:
         self._db.executescript(_SCHEMA)
         os.chmod(self.path, 0o600)
         self._verified: dict[str, tuple[int, float | None]] = {}  # sha256(token) -> (user id, expiry)
+        self._verifying: dict[str, threading.Lock] = {}  # sha256(token) -> the lock of its one argon2 check
+        self._verifying_guard = threading.Lock()
         self._sessions: dict[str, tuple[int, float]] = {}  # sha256(session) -> (user id, expiry)
         self._users: dict[int, User] = {}  # users never change once made; new ones are read on demand
 
@@ -176,6 +178,18 @@ class JobStore:
         hit = self._verified.get(key)
         if hit is not None and (hit[1] is None or hit[1] > time.time()):
             return self.user_by_id(hit[0])
+        with self._verifying_guard:
+            lock = self._verifying.setdefault(key, threading.Lock())
+        with lock:  # 50 scripts starting with one new token pay for one argon2 check, not 50
+            hit = self._verified.get(key)
+            if hit is not None and (hit[1] is None or hit[1] > time.time()):
+                return self.user_by_id(hit[0])
+            user = self._verify_token(token, key)
+        with self._verifying_guard:
+            self._verifying.pop(key, None)
+        return user
+
+    def _verify_token(self, token: str, key: str) -> User | None:
         from argon2.exceptions import InvalidHashError, VerificationError
         head = token.split(".", 1)[0]
         rows = self._rows("SELECT * FROM tokens WHERE id=?", (head,)) if "." in token else []

@@ -1,5 +1,6 @@
-"""`GET /api/models` under many pages polling at once: one list build at a time, and a stale list
-answered at once while a new one is built in the background."""
+"""Many pages and scripts at once: a new token is checked with argon2 once, not once per request
+in flight; `GET /api/models` builds one list at a time, and a stale list is answered at once while
+a new one is built in the background."""
 
 from __future__ import annotations
 
@@ -86,3 +87,26 @@ def test_a_status_change_is_never_hidden_by_a_build_that_started_before_it(app_a
     gate.set()
     builder.join(30)
     assert service.cached_models_json(admin) == (None, False)
+
+
+def test_requests_with_a_new_token_arriving_together_share_one_argon2_check(app_and_service, monkeypatch):
+    from laplab.jobs import db
+    _, service = app_and_service
+    real_hasher, checks = db._hasher, []
+
+    class CountingHasher:
+        def verify(self, hashed, token):
+            checks.append(token)
+            time.sleep(0.1)
+            return real_hasher().verify(hashed, token)
+
+    monkeypatch.setattr(db, "_hasher", CountingHasher)
+    users = []
+    threads = [threading.Thread(target=lambda: users.append(service.store.user_for_token(TOKEN))) for _ in range(20)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert len(users) == 20 and {u.name for u in users} == {service.store.admin().name}
+    assert checks == [TOKEN]
+    assert service.store.user_for_token("not-a-token") is None
