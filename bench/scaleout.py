@@ -41,10 +41,10 @@ def make_trainer(name: str, sensor: str, episodes: int, workers: int):
 def steps_per_second(trainer, iterations: int) -> tuple[float, float]:
     """(env steps per wall second of the collection step, the share of that wall time the slowest
     worker spent driving: the rest is Ray's overhead, broadcast, transfer and merge)."""
-    trainer._collect(lambda: False)  # warm-up: JIT, first frames
+    trainer._collect(lambda: False, time.perf_counter())  # warm-up: JIT, first frames
     steps, driving, started = 0, 0.0, time.perf_counter()
     for _ in range(iterations):
-        batch = trainer._collect(lambda: False)
+        batch = trainer._collect(lambda: False, time.perf_counter())
         steps += batch.env_steps
         driving += batch.wall_seconds
     wall = time.perf_counter() - started
