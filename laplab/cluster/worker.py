@@ -110,7 +110,8 @@ class RolloutWorker:
                                          float(max_speed), DEEPRACER.max_steering_deg)
         self.stepper = EpisodeStepper(self.sim, config.spec.action_space, self.reward_fn)
         threads = setup.camera_threads if config.spec.camera is not None else 1
-        self.learner = build_learner(replace(config, num_threads=config.num_threads or threads), setup.seed)
+        self.torch_threads = config.num_threads or threads
+        self.learner = build_learner(replace(config, num_threads=self.torch_threads), setup.seed)
 
     def ping(self) -> int:
         """The worker's process id (it is alive)."""
@@ -122,6 +123,7 @@ class RolloutWorker:
         from laplab.reward.watchdog import RewardWatchdog, WatchdogLimits
         from laplab.train.collect import collect_episodes
 
+        import torch
         learner = self.learner
         if policy["algorithm"] != learner.algorithm:
             raise ValueError(f"worker {self.setup.index} runs {learner.algorithm}, got {policy['algorithm']} weights")
@@ -131,7 +133,14 @@ class RolloutWorker:
         before = int(getattr(learner, "env_steps", 0))
         self.sim.restart_schedule(episodes_before)
 
+        threads = self.torch_threads
+
         def act(obs):
+            # torch's thread count is per OpenMP thread, and off the process's main thread (where Ray runs
+            # actor methods) each numba-parallel simulator step sets it back to every core: a vector
+            # network then acted 4x slower, on 2 threads beside numba's pool
+            if torch.get_num_threads() != threads:
+                torch.set_num_threads(threads)
             step = learner.act(obs, False)
             return step.action, step.env_action, step.log_prob, step.value
 
