@@ -41,12 +41,12 @@ def worker_setups(config, reward_source: str, reward_path: str, workers: int,
     shares = split_cars(config.hyper().num_episodes_between_training, workers)
     setups, offset = [], 0
     data = config.to_dict()
-    camera_threads = max(1, (os.cpu_count() or 1) // workers)  # a machine's cores shared by its workers
+    cores = max(1, (os.cpu_count() or 1) // workers)  # a machine's cores shared by its workers
     for index, cars in enumerate(shares):
         track, reverse = tracks[index % len(tracks)]
         setups.append(WorkerSetup(data, index, track, reverse, cars, offset, worker_seed(config.seed, index),
                                   reward_source, reward_path, reward_timeout_s, reward_wait_timeout_s,
-                                  camera_threads))
+                                  cores))
         offset += cars
     return setups
 

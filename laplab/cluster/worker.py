@@ -26,8 +26,8 @@ class WorkerSetup:
     ``track`` / ``reverse``, ``num_cars`` (its episodes per iteration), ``start_offset`` (how many
     episodes of the iteration come before its own, so the round-robin starts are consecutive across
     workers), ``seed``, the reward function's ``reward_source`` text and ``reward_path`` (named in
-    errors), the watchdog's limits (s), and the torch threads of a camera network (a vector network
-    acts fastest on one)."""
+    errors), the watchdog's limits (s), and ``cores``: the worker's share of its machine's cores,
+    the threads of its simulator and of a camera network (a vector network acts fastest on one)."""
 
     config: dict
     index: int
@@ -40,7 +40,7 @@ class WorkerSetup:
     reward_path: str
     reward_timeout_s: float = 5.0
     reward_wait_timeout_s: float = 60.0
-    camera_threads: int = 1
+    cores: int = 1
 
     @property
     def track_label(self) -> str:
@@ -109,7 +109,7 @@ class RolloutWorker:
         self.reward_fn = _compile_reward(setup.reward_source, setup.reward_path, "reward_function",
                                          float(max_speed), DEEPRACER.max_steering_deg)
         self.stepper = EpisodeStepper(self.sim, config.spec.action_space, self.reward_fn)
-        threads = setup.camera_threads if config.spec.camera is not None else 1
+        threads = setup.cores if config.spec.camera is not None else 1
         self.torch_threads = config.num_threads or threads
         self.learner = build_learner(replace(config, num_threads=self.torch_threads), setup.seed)
 
@@ -123,7 +123,9 @@ class RolloutWorker:
         from laplab.reward.watchdog import RewardWatchdog, WatchdogLimits
         from laplab.train.collect import collect_episodes
 
+        import numba
         import torch
+        numba.set_num_threads(min(self.setup.cores, numba.config.NUMBA_NUM_THREADS))  # per calling thread
         learner = self.learner
         if policy["algorithm"] != learner.algorithm:
             raise ValueError(f"worker {self.setup.index} runs {learner.algorithm}, got {policy['algorithm']} weights")
