@@ -8,7 +8,13 @@ steps per second against the same two trainings run by ``laplab train`` without 
 Everything runs on this machine (server, jobs and clients share its cores), on 127.0.0.1, with a
 fresh temporary ``$LAPLAB_HOME``, bounded by ``--seconds`` per phase.
 
+Three phases of ``--seconds``: the two trainings by ``laplab train`` (with the thread setting the
+console gives its jobs), the same two as console jobs with no clients (the server's own cost), and
+as console jobs under the load. Clients and server share this machine's cores with the trainings,
+so the bench also prints the share of the machine's CPU each took.
+
 Usage: python bench/console_load.py [--seconds 90] [--clients 50] [--streams 20] [--think 0.2] [--no-baseline]
+                                    [--no-quiet-phase]
        python bench/console_load.py --cpu-per-request --seconds 20 --clients 20 --streams 20
 """
 
@@ -77,8 +83,8 @@ def cpu_seconds(pid: int) -> float | None:
 
 
 def baseline(home: Path, seconds: float) -> list[float | None]:
-    """Two `laplab train` processes at once, no server."""
-    env = {**os.environ, "LAPLAB_HOME": str(home)}
+    """Two `laplab train` processes at once, no server, with the thread setting the console gives its jobs."""
+    env = {**os.environ, "LAPLAB_HOME": str(home), "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1")}
     home.mkdir(parents=True, exist_ok=True)
     hp = home / "hp.json"
     hp.write_text(json.dumps(HYPERPARAMETERS))
@@ -145,7 +151,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
 
         threads = [threading.Thread(target=api_client, daemon=True) for _ in range(clients)]
         threads += [threading.Thread(target=stream_client, args=(f"served-{i % 2}",), daemon=True) for i in range(streams)]
-        cpu_start, clients_start = cpu_seconds(server.pid), time.process_time()
+        cpu_start, clients_start, wall_start = cpu_seconds(server.pid), time.process_time(), time.monotonic()
         for t in threads:
             t.start()
         end = time.monotonic() + seconds + 600
@@ -156,11 +162,12 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
             time.sleep(1)
         stop.set()
         cpu_end, clients_cpu = cpu_seconds(server.pid), time.process_time() - clients_start
+        wall = time.monotonic() - wall_start
         for t in threads:
             t.join(5)
         cpu = None if cpu_start is None or cpu_end is None else cpu_end - cpu_start
         return {"latencies": latencies, "deliveries": deliveries, "errors": errors[0], "statuses": statuses, "cpu": cpu,
-                "clients_cpu": clients_cpu, "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)]}
+                "clients_cpu": clients_cpu, "wall": wall, "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)]}
     finally:
         admin.close()
         server.terminate()
@@ -234,6 +241,8 @@ def main() -> None:
     parser.add_argument("--think", type=float, default=0.2,
                         help="s each API client waits between requests (the console's Models page polls every 3 s)")
     parser.add_argument("--no-baseline", action="store_true", help="skip the trainings without the server")
+    parser.add_argument("--no-quiet-phase", action="store_true",
+                        help="skip the trainings run by the server with no clients (the server's own cost)")
     parser.add_argument("--cpu-per-request", action="store_true",
                         help="only the server's CPU per request: an idle model, --streams streams, --clients clients "
                              "with no think time for --seconds")
@@ -245,6 +254,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="laplab-bench-") as folder:
         root = Path(folder)
         base = [None, None] if args.no_baseline else baseline(root / "baseline", args.seconds)
+        quiet = None if args.no_quiet_phase else with_server(root / "quiet", args.seconds, 0, 0, args.think)
         served = with_server(root / "served", args.seconds, args.clients, args.streams, args.think)
     lat, dl = served["latencies"], served["deliveries"]
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end")
@@ -261,6 +271,14 @@ def main() -> None:
     print(f"env steps/s of 2 trainings: without the server {fmt(base)} (mean {mean(base):.1f}); "
           f"with the server and the load {fmt(served['steps'])} (mean {mean(served['steps']):.1f}); "
           f"ratio {mean(served['steps']) / mean(base):.2f}; final statuses {served['statuses']}")
+    if quiet is not None:
+        print(f"  as console jobs, no clients: {fmt(quiet['steps'])} (mean {mean(quiet['steps']):.1f}), ratio to "
+              f"without the server {mean(quiet['steps']) / mean(base):.2f}; the load's clients then take the "
+              f"ratio to {mean(served['steps']) / mean(quiet['steps']):.2f} of that")
+    if served["cpu"] is not None:
+        print(f"  the server's share of the machine under the load: {served['cpu'] / (served['wall'] * os.cpu_count()):.1%}"
+              f" of its CPU ({served['cpu']:.1f} s in {served['wall']:.0f} s on {os.cpu_count()} cores); the clients' "
+              f"{served['clients_cpu'] / (served['wall'] * os.cpu_count()):.1%}")
 
 
 if __name__ == "__main__":
