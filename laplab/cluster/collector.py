@@ -91,14 +91,52 @@ def connect_ray(address: str | None, workers: int) -> bool:
         check_reachable(address)
     try:
         if address:
+            if address.startswith("ray://"):
+                use_ray_token()  # Ray Client sends the token only when told to
             ray.init(address=address, **quiet)
         else:
             ray.init(num_cpus=max(workers + 1, os.cpu_count() or 1), include_dashboard=False, **quiet)
     except Exception as exc:  # Ray's own start-up errors: a paragraph, not a traceback
         where = f"join the Ray cluster at {address}" if address else "start a local Ray"
-        raise JobError(f"could not {where}: {_reason(exc)} (an overloaded machine can make Ray's start time "
-                       "out; try again, or use fewer --workers)") from None
+        hint = "an overloaded machine can make Ray's start time out; try again, or use fewer --workers"
+        if address and address.startswith("ray://"):
+            hint = ("is its client server up, and the same Ray and Python here and there? A cluster with token "
+                    "authentication (Ray's default) needs its token here: RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or "
+                    "~/.ray/auth_token (`ray get-auth-token` on the head prints it)")
+        raise JobError(f"could not {where}: {_reason(exc)} ({hint})") from None
     return True
+
+
+def use_ray_token() -> None:
+    """Make this process's Ray authenticate with the token of :func:`ray_auth_environment`."""
+    variables = ray_auth_environment()
+    if not variables or all(os.environ.get(k) == v for k, v in variables.items()):
+        return
+    os.environ.update(variables)
+    try:  # Ray reads its settings once; read them again, as Ray does when it turns token mode on itself
+        from ray._raylet import Config
+        Config.initialize("")
+    except (ImportError, AttributeError):
+        pass
+
+
+def ray_auth_environment() -> dict[str, str]:
+    """The variables that make Ray authenticate with the cluster's token (Ray's token authentication:
+    ``RAY_AUTH_MODE=token`` and ``RAY_AUTH_TOKEN``), from ``RAY_AUTH_TOKEN``, the file at
+    ``RAY_AUTH_TOKEN_PATH`` or ``~/.ray/auth_token``; {} when no token is at hand or
+    ``RAY_AUTH_MODE`` says otherwise."""
+    mode = os.environ.get("RAY_AUTH_MODE")
+    if mode is not None and mode.lower() != "token":
+        return {}
+    token = os.environ.get("RAY_AUTH_TOKEN")
+    if not token:
+        from pathlib import Path
+        path = Path(os.environ.get("RAY_AUTH_TOKEN_PATH") or Path.home() / ".ray" / "auth_token")
+        try:
+            token = path.read_text().strip()
+        except OSError:
+            return {}
+    return {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": token} if token else {}
 
 
 def _is_worker_death(exc: BaseException) -> bool:

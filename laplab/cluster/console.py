@@ -16,7 +16,7 @@ import importlib.util
 import ipaddress
 import socket
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 from laplab.train.errors import JobError
@@ -28,13 +28,26 @@ CLUSTER_KINDS = ("train", "clone", "resume")  # the jobs whose workers run on th
 @dataclass(frozen=True)
 class RayCluster:
     """The cluster a console's training jobs use: its ``address`` and ``workers``, the rollout
-    workers of a job (a request may ask for fewer: ``workers`` in the API)."""
+    workers of a job (a request may ask for fewer: ``workers`` in the API); ``auth``: the variables
+    of Ray's token authentication the jobs get (:meth:`at`), never written to a file."""
 
     address: str
     workers: int = DEFAULT_ROLLOUT_WORKERS
+    auth: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def at(cls, address: str, workers: int = DEFAULT_ROLLOUT_WORKERS) -> "RayCluster":
+        """The cluster at ``address`` with the token this server's user has (RAY_AUTH_TOKEN,
+        RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token), if any."""
+        from laplab.cluster.collector import ray_auth_environment
+        return cls(address, workers, ray_auth_environment())
 
     def to_spec(self) -> dict:
+        """What the job's spec.json says (the token goes in its environment only)."""
         return {"address": self.address, "workers": self.workers}
+
+    def job_environment(self) -> dict[str, str]:
+        return dict(self.auth)
 
 
 def _host_of(address: str) -> str:

@@ -100,4 +100,4 @@ def _cluster(args: argparse.Namespace):
     from laplab.jobs.confinement import bubblewrap_works
     workers = DEFAULT_ROLLOUT_WORKERS if args.rollout_workers is None else args.rollout_workers
     warnings = check_console_cluster(args.ray_address, workers, bubblewrap_works())
-    return RayCluster(args.ray_address, workers), warnings
+    return RayCluster.at(args.ray_address, workers), warnings

@@ -153,7 +153,8 @@ class LocalProcessRunner:
         home = SANDBOX_HOME if self.sandbox else str(laplab_home())
         env = clean_environment({"LAPLAB_HOME": home,
                                  "NUMBA_CACHE_DIR": f"{home}/cache/numba" if self.sandbox
-                                 else str(owner_cache(job.owner) / "numba")}, sandboxed=self.sandbox)
+                                 else str(owner_cache(job.owner) / "numba"),
+                                 **(self.cluster.job_environment() if on_cluster else {})}, sandboxed=self.sandbox)
         mounts = job_mounts(job)
         if on_cluster:  # the network, to reach the cluster; the same files as any job
             mounts = replace(mounts, network=True)

@@ -58,7 +58,7 @@ def ray_head(tmp_path_factory):
     gcs, client = free_port(), free_port()
     env = {**os.environ, "PYTHONPATH": str(REPO), "NUMBA_CACHE_DIR": str(cache), "RAY_USAGE_STATS_ENABLED": "0"}
     command = [sys.executable, "-m", "ray.scripts.scripts", "start", "--head", "--block", "--port", str(gcs),
-               "--ray-client-server-port", str(client), "--node-ip-address", "127.0.0.1", "--num-cpus", "2",
+               "--ray-client-server-port", str(client), "--num-cpus", "2",
                "--include-dashboard", "false", "--disable-usage-stats", "--temp-dir", temp]
     log = open(Path(temp) / "ray-start.log", "w")
     head = subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
@@ -88,9 +88,17 @@ def ray_head(tmp_path_factory):
 @pytest.fixture(scope="module")
 def joined(ray_head):
     """This test process as a Ray Client driver of the module's cluster."""
+    from laplab.cluster.collector import use_ray_token
+    saved = {k: os.environ.get(k) for k in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN")}
+    use_ray_token()  # the token `ray start` made or found (Ray's default), as laplab's jobs do
     ray.init(address=ray_head["client"], logging_level=logging.ERROR, log_to_driver=False)
     yield ray_head
     ray.shutdown()
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
 
 
 @pytest.fixture
@@ -149,7 +157,7 @@ def test_ray_collection_reports_progress_and_the_workers_file_follows_the_worker
     assert [w["index"] for w in final] == [0, 1] and [w["pid"] for w in final] == pids
     for row in final:
         assert row["state"] == "stopped" and row["restarts"] == 0 and row["track"] == "classic_2018"
-        assert row["host"] == socket.gethostname() and row["node_ip"] == "127.0.0.1"
+        assert row["host"] == socket.gethostname() and row["node_ip"]
         assert row["actor_id"] and row["node_id"]
 
 
@@ -168,7 +176,7 @@ def test_only_jobs_with_the_network_reach_the_cluster(ray_head, tmp_path):
 
 
 def test_a_console_job_trains_with_two_workers_on_the_cluster(ray_head, tmp_path, serve_console):
-    cluster = RayCluster(ray_head["client"], 2)
+    cluster = RayCluster.at(ray_head["client"], 2)  # with this user's Ray token, as `laplab serve` takes it
     with serve_console(tmp_path / "home", workers=1, cluster=cluster) as console:
         too_many = console.admin.post("/api/models", json={"name": "greedy", "workers": 3})
         assert too_many.status_code == 400 and too_many.json()["detail"]["field"] == "workers"
