@@ -77,8 +77,8 @@ def attach_workers(trainer, workers: int, ray_address: str | None = None,
     setups = worker_setups(config, source, path, workers, reward_timeout_s, reward_wait_timeout_s)
     on_status = (lambda records: None)
     if getattr(trainer, "folder", None) is not None:  # the model page's table (laplab.cluster.status)
-        status_path = workers_file(trainer.folder.root)
-        on_status = lambda records: write_workers(status_path, records)  # noqa: E731
+        status_path, since = workers_file(trainer.folder.root), int(trainer.iteration)
+        on_status = lambda records: write_workers(status_path, records, since)  # noqa: E731
     collector = RayCollector(setups, notify, ray_address, on_status).start()
     trainer.collector = collector
     if len(config.training_tracks()) > 1:

@@ -58,22 +58,30 @@ def workers_file(model_root: Path | str) -> Path:
     return Path(model_root) / "logs" / "workers.json"
 
 
-def write_workers(path: Path, records: list[WorkerRecord]) -> None:
-    """Rewrite ``path`` with ``records`` (a reader never sees half a file)."""
+def write_workers(path: Path, records: list[WorkerRecord], since_iteration: int = 0) -> None:
+    """Rewrite ``path`` with ``records`` of a session that started after iteration ``since_iteration``
+    (a reader never sees half a file)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    temporary.write_text(json.dumps({"updated": time.time(), "workers": [asdict(r) for r in records]}, indent=1))
+    document = {"updated": time.time(), "since_iteration": int(since_iteration), "workers": [asdict(r) for r in records]}
+    temporary.write_text(json.dumps(document, indent=1))
     temporary.replace(path)
 
 
-def read_workers(model_root: Path | str) -> list[dict]:
-    """The workers of a model's last Ray session (empty for an in-process model, or an unreadable file)."""
+def read_workers(model_root: Path | str, last_iteration: int | None = None) -> list[dict]:
+    """The workers of a model's last Ray session: empty for an in-process model, an unreadable file,
+    or when the model's ``last_iteration`` came after that session (a later session collected in-process)."""
     try:
         document = json.loads(workers_file(model_root).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return []
     rows = document.get("workers") if isinstance(document, dict) else None
-    return [row for row in rows if isinstance(row, dict)] if isinstance(rows, list) else []
+    rows = [row for row in rows if isinstance(row, dict)] if isinstance(rows, list) else []
+    if last_iteration is not None and rows:
+        delivered = [row["iteration"] for row in rows if isinstance(row.get("iteration"), int)]
+        if last_iteration > max([int(document.get("since_iteration") or 0), *delivered]):
+            return []
+    return rows
 
 
 class ProgressBoard:

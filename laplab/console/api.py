@@ -233,17 +233,19 @@ def get_model(name: str, request: Request, user: User = Depends(current_user)) -
     model["reward_function"] = (folder / "reward_function.py").read_text() if (folder / "reward_function.py").exists() else None
     config = folder / "laplab.json"
     model["config"] = json.loads(config.read_text()) if config.exists() else None
-    model["workers"] = _worker_rows(folder, model["status"])
+    model["workers"] = _worker_rows(folder, model["status"], model["iterations"])
     _, job = service.model_status(name, model)
     model["rollout_workers"] = job.params.get("workers") if job is not None else None  # asked of the last job
     return model
 
 
-def _worker_rows(folder, status: str) -> list[dict]:
-    """The rollout workers of the model's last Ray session (:mod:`laplab.cluster.status`); a worker
-    the file calls alive is ``stopped`` once no job of the model runs (a killed job wrote no last word)."""
+def _worker_rows(folder, status: str, iterations: list[dict]) -> list[dict]:
+    """The rollout workers of the model's last Ray session (:mod:`laplab.cluster.status`; none when
+    a later session collected in-process); a worker the file calls alive is ``stopped`` once no job
+    of the model runs (a killed job wrote no last word)."""
     from laplab.cluster.status import read_workers
-    rows = read_workers(folder)
+    last = iterations[-1].get("iteration") if iterations else None
+    rows = read_workers(folder, last if isinstance(last, int) else None)
     if status not in ("training", "stopping"):
         for row in rows:
             if row.get("state") in ("starting", "alive", "restarting"):
