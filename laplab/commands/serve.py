@@ -22,9 +22,9 @@ def register(subparsers) -> None:
     parser.add_argument("--ray-address", default=None, metavar="ADDR",
                         help="run the rollout workers of training jobs on the Ray cluster at ADDR; sandboxed jobs "
                              "join through Ray Client, ray://HEAD:10001. Those jobs keep the network (no other "
-                             "access), and reward functions then run in the cluster's worker processes, as the "
-                             "cluster's user on its nodes: keep the console's secrets off those nodes "
-                             "(docs/console.md, 'Jobs on a Ray cluster')")
+                             "access) and the cluster's Ray token, and reward functions then run in the cluster's "
+                             "worker processes, as the cluster's user on its nodes: keep the console's secrets off "
+                             "those nodes (docs/console.md, 'Jobs on a Ray cluster')")
     parser.add_argument("--rollout-workers", type=int, default=None, metavar="N",
                         help="with --ray-address: rollout workers per training job, as deepracer-for-cloud's "
                              "DR_WORKERS (default 2; a request's `workers` may ask for fewer)")

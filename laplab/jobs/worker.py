@@ -99,6 +99,18 @@ class LiveFeed:
             self.files.write_camera(render_camera(self._texture, frame.poses[:1], self.camera)[0])
 
 
+class PhaseFeed:
+    """A trainer listener: where the running iteration stands (the trainer's PhaseProgress, about
+    once a second: episodes collected, in-process or by Ray workers, then gradient steps, then
+    evaluation laps) as ``phase`` lines of ``events.jsonl``."""
+
+    def __init__(self, files: JobFiles):
+        self.files = files
+
+    def on_progress(self, progress) -> None:
+        self.files.event("phase", **asdict(progress))
+
+
 def _train(files: JobFiles, spec: dict) -> None:
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import clone_config
@@ -126,6 +138,7 @@ def _train(files: JobFiles, spec: dict) -> None:
         else:
             trainer = create_training_in_place(name, replace(TrainConfig(), **values))
     trainer.subscribe(LiveFeed(files, trainer))
+    trainer.subscribe(PhaseFeed(files))
     files.event("started", iteration=trainer.iteration)
 
     def on_iteration(report) -> None:

@@ -314,6 +314,9 @@ const Console = (() => {
       if ((model.workers || []).length || model.rollout_workers) api("GET", `/api/models/${name}`).then(m => { model.workers = m.workers; renderWorkers(); }).catch(() => {}); });
     events.addEventListener("status", ev => { const s = JSON.parse(ev.data); if (s.status) setStatus(["queued", "training", "stopping", "ready", "failed", "interrupted", "stopped"].includes(s.status) && !["evaluate", "export"].includes(s.kind) ? (s.status === "stopped" ? model.status : s.status) : model.status); refresh(); loadEvaluations(); });
     events.addEventListener("poses", ev => live.update(JSON.parse(ev.data)));
+    const phases = {collect: ["collecting", "episodes"], learn: ["learning", "gradient steps"], evaluate: ["evaluating", "laps"]};
+    events.addEventListener("phase", ev => { const p = JSON.parse(ev.data), [verb, unit] = phases[p.phase] || [p.phase, ""];
+      $("#stat-phase").textContent = `iteration ${p.iteration}: ${verb}` + (p.total ? ` ${p.done}/${p.total} ${unit}` : ""); });
     $("#stop").addEventListener("click", async () => { try { await api("POST", `/api/models/${name}/stop`); toast("stopping: the model keeps its last checkpoint"); refresh(); } catch (e) { toast(e.message); } });
     $("#resume").addEventListener("click", async () => { try { await api("POST", `/api/models/${name}/resume`, {}); toast("resumed"); refresh(); } catch (e) { toast(e.message); } });
     async function loadEvaluations() {
