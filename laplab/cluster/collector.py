@@ -57,7 +57,8 @@ def require_policy_version(batch: TaggedEpisodeBatch, version: int) -> None:
         raise StalePolicyError(f"a learner update of policy version {version} got episodes of version(s) {stale}")
 
 
-def check_reachable(address: str, timeout_s: float = 3.0) -> None:
+def check_reachable(address: str, timeout_s: float = 3.0,
+                    otherwise: str = "train without --ray-address to use a local Ray") -> None:
     """A clear :class:`JobError` when nothing listens at ``address`` (``host:port`` or
     ``ray://host:port``); Ray itself would wait for minutes. ``auto`` is left to Ray."""
     if address == "auto":
@@ -72,8 +73,7 @@ def check_reachable(address: str, timeout_s: float = 3.0) -> None:
             pass
     except OSError as exc:
         raise JobError(f"cannot reach the Ray cluster at {address} ({exc.strerror or exc}); start its head "
-                       "node with `ray start --head` on that machine (or train without --ray-address to "
-                       "use a local Ray).") from None
+                       f"node with `ray start --head` on that machine (or {otherwise}).") from None
 
 
 def connect_ray(address: str | None, workers: int) -> bool:

@@ -86,7 +86,7 @@ def check_console_cluster(address: str, workers: int, sandboxed: bool) -> list[s
                        f"cluster through Ray Client: --ray-address ray://{host}:10001 (the client server that "
                        "`ray start --head` starts, port 10001 unless --ray-client-server-port says otherwise)")
     from laplab.cluster.collector import check_reachable
-    check_reachable(address)
+    check_reachable(address, otherwise="serve without --ray-address: each job then collects in its own process")
     warnings = []
     if runs_on_this_machine(address):
         warnings.append(f"the Ray cluster at {address} runs on this machine: the reward functions of console jobs "

@@ -125,7 +125,7 @@ def test_ray_collection_reports_progress_and_the_workers_file_follows_the_worker
 
         def reward_function(params):
             if os.getpid() != {os.getpid()}:  # in the rollout workers: slow steps, a collection of seconds
-                time.sleep(0.01)
+                time.sleep(0.02)
             return 1.0
         """))
     hyper = {**TrainConfig().hyper().to_dict(), **SMALL_HP}
