@@ -224,3 +224,15 @@ def test_bad_cluster_settings_are_one_paragraph(ray_head, capsys):
     assert job_worker_count(None, RayCluster("ray://h:1", 8), 4) == 4  # the default, at most one per episode
     with pytest.raises(JobError, match="more than the 2 episodes"):
         job_worker_count(3, RayCluster("ray://h:1", 8), 2)
+
+
+def test_a_cluster_gone_at_job_time_fails_the_job_with_one_paragraph(tmp_path, serve_console):
+    """The address was checked at start; a cluster that went away since fails the job, on its page."""
+    with serve_console(tmp_path / "home", workers=1, cluster=RayCluster("ray://127.0.0.1:9", 2)) as console:
+        created = console.admin.post("/api/models", json={"name": "orphan", "hyperparameters": SMALL_HP,
+                                                          "max_episodes": 4, "max_time_s": 120})
+        assert created.status_code == 201, created.text
+        model = console.wait_for(console.admin, "orphan", ("ready", "failed"), timeout_s=240)
+    assert model["status"] == "failed"
+    assert "cannot reach the Ray cluster at ray://127.0.0.1:9" in model["error"] and "Traceback" not in model["error"]
+    assert "\n" not in model["error"].strip()
