@@ -39,6 +39,7 @@ from laplab.train.errors import JobError
 MAX_RESTARTS_PER_ITERATION = 3
 _POLL_S = 0.2
 PROGRESS_READ_S = 1.0  # the learner reads the workers' progress board at most this often
+CLIENT_ATTEMPTS = 3  # Ray Client connections tried when the head fails to start the client's server
 
 
 class WorkerFailure(JobError):
@@ -89,13 +90,22 @@ def connect_ray(address: str | None, workers: int) -> bool:
     quiet = {"logging_level": logging.ERROR, "log_to_driver": False, "configure_logging": True}
     if address:
         check_reachable(address)
+    client = bool(address) and address.startswith("ray://")
+    if client:
+        use_ray_token()  # Ray Client sends the token only when told to
     try:
-        if address:
-            if address.startswith("ray://"):
-                use_ray_token()  # Ray Client sends the token only when told to
-            ray.init(address=address, **quiet)
-        else:
-            ray.init(num_cpus=max(workers + 1, os.cpu_count() or 1), include_dashboard=False, **quiet)
+        for attempt in range(CLIENT_ATTEMPTS if client else 1):
+            try:
+                if address:
+                    ray.init(address=address, **quiet)
+                else:
+                    ray.init(num_cpus=max(workers + 1, os.cpu_count() or 1), include_dashboard=False, **quiet)
+                break
+            except ConnectionAbortedError:  # the head could not start this client's server in time (a busy head)
+                if attempt + 1 == CLIENT_ATTEMPTS:
+                    raise
+                ray.shutdown()
+                time.sleep(2.0)
     except Exception as exc:  # Ray's own start-up errors: a paragraph, not a traceback
         where = f"join the Ray cluster at {address}" if address else "start a local Ray"
         hint = "an overloaded machine can make Ray's start time out; try again, or use fewer --workers"

@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import json
-import logging
 import os
 import shutil
 import signal
@@ -88,10 +87,9 @@ def ray_head(tmp_path_factory):
 @pytest.fixture(scope="module")
 def joined(ray_head):
     """This test process as a Ray Client driver of the module's cluster."""
-    from laplab.cluster.collector import use_ray_token
+    from laplab.cluster.collector import connect_ray
     saved = {k: os.environ.get(k) for k in ("RAY_AUTH_MODE", "RAY_AUTH_TOKEN")}
-    use_ray_token()  # the token `ray start` made or found (Ray's default), as laplab's jobs do
-    ray.init(address=ray_head["client"], logging_level=logging.ERROR, log_to_driver=False)
+    assert connect_ray(ray_head["client"], 2)  # with the token `ray start` made or found, as laplab's jobs join
     yield ray_head
     ray.shutdown()
     for key, value in saved.items():
