@@ -13,6 +13,7 @@ from typing import Callable
 
 from laplab.cluster.collector import RayCollector
 from laplab.cluster.evaluate import MultiTrackEvaluator
+from laplab.cluster.status import workers_file, write_workers
 from laplab.cluster.worker import WorkerSetup, split_cars, worker_seed
 from laplab.train.errors import JobError
 
@@ -66,14 +67,19 @@ def attach_workers(trainer, workers: int, ray_address: str | None = None,
                    notify: Callable[[str], None] = lambda message: None,
                    reward_timeout_s: float = 5.0, reward_wait_timeout_s: float = 60.0) -> RayCollector:
     """Start ``workers`` rollout workers (on the cluster at ``ray_address``, or a local Ray) and
-    make them ``trainer``'s collection step. Returns the collector; ``close()`` it after the job."""
+    make them ``trainer``'s collection step. Returns the collector; ``close()`` it after the job.
+    The workers' state goes to the model folder's ``logs/workers.json`` (:mod:`laplab.cluster.status`)."""
     config = trainer.config
     check_workers(config, workers)
     validate_reward_on_tracks(config, trainer.reward_fn)
     source = trainer.reward_fn.source
     path = str(getattr(trainer.reward_fn, "path", "<string>"))
     setups = worker_setups(config, source, path, workers, reward_timeout_s, reward_wait_timeout_s)
-    collector = RayCollector(setups, notify, ray_address).start()
+    on_status = (lambda records: None)
+    if getattr(trainer, "folder", None) is not None:  # the model page's table (laplab.cluster.status)
+        status_path, since = workers_file(trainer.folder.root), int(trainer.iteration)
+        on_status = lambda records: write_workers(status_path, records, since)  # noqa: E731
+    collector = RayCollector(setups, notify, ray_address, on_status).start()
     trainer.collector = collector
     if len(config.training_tracks()) > 1:
         trainer.evaluator = MultiTrackEvaluator(config, trainer.reward_fn, config.training_tracks())

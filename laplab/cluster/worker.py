@@ -12,6 +12,7 @@ learner broadcasts each iteration.
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -59,6 +60,7 @@ class WorkerResult:
     acted_steps: int = 0
     reward_error: str | None = None
     pid: int = 0
+    where: dict | None = None  # the worker's process facts (RolloutWorker.where)
 
 
 class RolloutWorkerError(RewardFunctionError):
@@ -112,19 +114,51 @@ class RolloutWorker:
         threads = setup.cores if config.spec.camera is not None else 1
         self.torch_threads = config.num_threads or threads
         self.learner = build_learner(replace(config, num_threads=self.torch_threads), setup.seed)
+        self._where: dict | None = None
 
     def ping(self) -> int:
         """The worker's process id (it is alive)."""
         return os.getpid()
 
-    def collect(self, policy: dict, policy_version: int, episodes_before: int) -> WorkerResult:
-        """Drive one episode per car with the broadcast ``policy`` (see :func:`policy_weights`)."""
+    def where(self) -> dict:
+        """Where the worker runs: ``host`` (name), ``node_ip``, ``node_id`` (Ray's), ``pid``, ``actor_id``."""
+        import socket
+        facts = {"host": socket.gethostname(), "pid": os.getpid(), "node_ip": None, "node_id": None, "actor_id": None}
+        try:
+            import ray
+            context = ray.get_runtime_context()
+            facts.update(node_id=context.get_node_id(), actor_id=context.get_actor_id(),
+                         node_ip=ray.util.get_node_ip_address())
+        except Exception:  # noqa: BLE001 - not in a Ray actor (a plain object in tests)
+            pass
+        return facts
+
+    def _progress_hook(self, board, policy_version: int):
+        """Tell ``board`` (a ProgressBoard actor) the episodes done, at most every REPORT_INTERVAL_S."""
+        if board is None:
+            return None
+        from laplab.cluster.status import REPORT_INTERVAL_S
+        from laplab.sim.state import IN_PROGRESS
+        last = [time.monotonic()]
+
+        def hook(poses, sim_time) -> None:
+            now = time.monotonic()
+            if now - last[0] >= REPORT_INTERVAL_S:
+                last[0] = now
+                state = self.sim.state
+                board.report.remote(self.setup.index, policy_version, int((state.status != IN_PROGRESS).sum()),
+                                    int(state.steps.sum()))
+        return hook
+
+    def collect(self, policy: dict, policy_version: int, episodes_before: int, board=None) -> WorkerResult:
+        """Drive one episode per car with the broadcast ``policy`` (see :func:`policy_weights`);
+        tell ``board`` (a :class:`~laplab.cluster.status.ProgressBoard` actor, optional) how far it is."""
+        import numba
+        import torch
+
         from laplab.cluster.batches import tag
         from laplab.reward.watchdog import RewardWatchdog, WatchdogLimits
         from laplab.train.collect import collect_episodes
-
-        import numba
-        import torch
         numba.set_num_threads(min(self.setup.cores, numba.config.NUMBA_NUM_THREADS))  # per calling thread
         learner = self.learner
         if policy["algorithm"] != learner.algorithm:
@@ -149,12 +183,15 @@ class RolloutWorker:
         limits = WatchdogLimits(self.setup.reward_timeout_s, self.setup.reward_wait_timeout_s)
         try:
             with RewardWatchdog(limits):
-                batch = collect_episodes(self.stepper, self.observations, act, learner.values)
+                batch = collect_episodes(self.stepper, self.observations, act, learner.values,
+                                         on_poses=self._progress_hook(board, policy_version))
         except RewardFunctionError as exc:
             return WorkerResult(self.setup.index, policy_version, reward_error=str(exc), pid=os.getpid())
         acted = int(getattr(learner, "env_steps", 0)) - before
         tagged = tag(batch, self.setup.index, self.setup.track_label, policy_version)
-        return WorkerResult(self.setup.index, policy_version, tagged, acted, pid=os.getpid())
+        if self._where is None:
+            self._where = self.where()
+        return WorkerResult(self.setup.index, policy_version, tagged, acted, pid=os.getpid(), where=self._where)
 
 
 def split_cars(episodes: int, workers: int) -> list[int]:

@@ -19,6 +19,15 @@ def register(subparsers) -> None:
     parser.add_argument("--job-wall-margin", type=float, default=600.0, metavar="SECONDS",
                         help="wall-clock seconds a job may run past its own budget (a training's max time, an "
                              "evaluation's trials x max trial time) before the server ends it (default 600)")
+    parser.add_argument("--ray-address", default=None, metavar="ADDR",
+                        help="run the rollout workers of training jobs on the Ray cluster at ADDR; sandboxed jobs "
+                             "join through Ray Client, ray://HEAD:10001. Those jobs keep the network (no other "
+                             "access) and the cluster's Ray token, and reward functions then run in the cluster's "
+                             "worker processes, as the cluster's user on its nodes: keep the console's secrets off "
+                             "those nodes (docs/console.md, 'Jobs on a Ray cluster')")
+    parser.add_argument("--rollout-workers", type=int, default=None, metavar="N",
+                        help="with --ray-address: rollout workers per training job, as deepracer-for-cloud's "
+                             "DR_WORKERS (default 2; a request's `workers` may ask for fewer)")
     parser.add_argument("--no-accounts", action="store_true",
                         help="everyone is the admin, no login (only with a loopback --host)")
     parser.set_defaults(func=run)
@@ -51,7 +60,9 @@ def run(args: argparse.Namespace) -> int:
     if not (args.job_wall_margin > 0 and math.isfinite(args.job_wall_margin)):
         raise UserError(f"--job-wall-margin must be a positive number of seconds, got {args.job_wall_margin}")
     from laplab.jobs.confinement import JobLimits
-    app = create_app(args.workers, open_access=args.no_accounts, limits=JobLimits(wall_margin_s=args.job_wall_margin))
+    cluster, warnings = _cluster(args)
+    app = create_app(args.workers, open_access=args.no_accounts, limits=JobLimits(wall_margin_s=args.job_wall_margin),
+                     cluster=cluster)
     store, service = app.state.store, app.state.service
     admin = store.admin()
     token = app.state.first_token
@@ -60,6 +71,11 @@ def run(args: argparse.Namespace) -> int:
     shown = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
     url = f"http://{shown}:{args.port}/"
     print(f"laplab console: {service.workers} job worker(s), jobs {'sandboxed with bubblewrap' if app.state.sandbox else 'NOT sandboxed (bubblewrap missing): limits and a clean environment only'}")
+    if cluster is not None:
+        print(f"training jobs run {cluster.workers} rollout worker(s) each on the Ray cluster at {cluster.address} "
+              "(their jobs keep the network)")
+    for warning in warnings:
+        print(f"warning: {warning}", flush=True)
     for job in service.interrupted_at_start:
         print(f"  job {job.id} ({job.kind} {job.model}) was interrupted by the last shutdown: resume it from its page")
     if args.no_accounts:
@@ -70,3 +86,18 @@ def run(args: argparse.Namespace) -> int:
             print(f"the admin's token (shown once; `laplab users add NAME` adds users): {token}", flush=True)
     uvicorn.run(app, host=args.host, port=args.port, log_level="warning")
     return 0
+
+
+def _cluster(args: argparse.Namespace):
+    """The Ray cluster of ``--ray-address`` (checked: reachable, joinable from a sandboxed job) and
+    its warnings, or (None, []) without one."""
+    from laplab.errors import UserError
+    if args.ray_address is None:
+        if args.rollout_workers is not None:
+            raise UserError("--rollout-workers needs --ray-address: without a cluster each job collects in its own process")
+        return None, []
+    from laplab.cluster.console import DEFAULT_ROLLOUT_WORKERS, RayCluster, check_console_cluster
+    from laplab.jobs.confinement import bubblewrap_works
+    workers = DEFAULT_ROLLOUT_WORKERS if args.rollout_workers is None else args.rollout_workers
+    warnings = check_console_cluster(args.ray_address, workers, bubblewrap_works())
+    return RayCluster.at(args.ray_address, workers), warnings

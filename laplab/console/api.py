@@ -37,6 +37,7 @@ class CloneModel(BaseModel):
     hyperparameters: dict | None = None
     max_time_s: float = 600.0
     max_episodes: int | None = None
+    workers: int | None = Field(None, ge=1, le=1024, description="rollout workers on the console's Ray cluster")
 
 
 class CreateModel(CloneModel):
@@ -47,6 +48,7 @@ class CreateModel(CloneModel):
 class Resume(BaseModel):
     model_config = ConfigDict(extra="forbid")
     max_time_s: float | None = None
+    workers: int | None = Field(None, ge=1, le=1024, description="rollout workers on the console's Ray cluster")
 
 
 # What the console lets a user set of an evaluation: every EvaluationSettings field but ``force``
@@ -121,8 +123,9 @@ def check_track_name(track: str | None) -> None:
                           "import other routes with `laplab tracks import FILE.npy`", "track")
 
 
-def _check_train_inputs(values: dict) -> None:
-    """Build the TrainConfig the worker will build (every validator of the CLI), and load the track."""
+def _check_train_inputs(values: dict):
+    """Build the TrainConfig the worker will build (every validator of the CLI), load the track, and
+    return the config."""
     from dataclasses import replace
 
     from laplab.track.registry import load_track
@@ -135,6 +138,20 @@ def _check_train_inputs(values: dict) -> None:
         raise bad_request(str(exc), _field_of(exc) or ("max_time_s" if "max time" in str(exc) else None)) from None
     except (TypeError, ValueError) as exc:
         raise bad_request(str(exc)) from None
+    return config
+
+
+def _job_workers(request: Request, requested: int | None, episodes: int) -> dict:
+    """``{"workers": N}`` for a training job of a console with a Ray cluster (``{}`` without one);
+    a 400 naming ``workers`` for a count it cannot give."""
+    from laplab.cluster.console import job_worker_count
+    from laplab.train.errors import JobError
+    cluster = request.app.state.cluster
+    try:
+        count = job_worker_count(requested, cluster, int(episodes))
+    except JobError as exc:
+        raise bad_request(str(exc), "workers") from None
+    return {"workers": count} if cluster is not None else {}
 
 
 async def _validate_reward(request: Request, user: User, source: str, track: str | None, metadata: dict | None) -> dict:
@@ -212,9 +229,10 @@ async def create_model(body: CreateModel, request: Request, user: User = Depends
     _name_free(request, body.name)
     values = {"track": body.track, "model_metadata": body.model_metadata, "hyperparameters": body.hyperparameters,
               "max_time_s": body.max_time_s, "max_episodes": body.max_episodes, "seed": body.seed}
-    _check_train_inputs(values)
+    config = _check_train_inputs(values)
+    workers = _job_workers(request, body.workers, config.hyper().num_episodes_between_training)
     await _validate_and_claim(request, user, body, body.reward_function, body.track, body.model_metadata)
-    job = service.submit("train", body.name, user.id, {k: v for k, v in values.items() if v is not None},
+    job = service.submit("train", body.name, user.id, {**{k: v for k, v in values.items() if v is not None}, **workers},
                          reward_source=body.reward_function)
     return {**service.describe(body.name), "job": job.to_dict()}
 
@@ -232,7 +250,24 @@ def get_model(name: str, request: Request, user: User = Depends(current_user)) -
     model["reward_function"] = (folder / "reward_function.py").read_text() if (folder / "reward_function.py").exists() else None
     config = folder / "laplab.json"
     model["config"] = json.loads(config.read_text()) if config.exists() else None
+    model["workers"] = _worker_rows(folder, model["status"], model["iterations"])
+    _, job = service.model_status(name, model)
+    model["rollout_workers"] = job.params.get("workers") if job is not None else None  # asked of the last job
     return model
+
+
+def _worker_rows(folder, status: str, iterations: list[dict]) -> list[dict]:
+    """The rollout workers of the model's last Ray session (:mod:`laplab.cluster.status`; none when
+    a later session collected in-process); a worker the file calls alive is ``stopped`` once no job
+    of the model runs (a killed job wrote no last word)."""
+    from laplab.cluster.status import read_workers
+    last = iterations[-1].get("iteration") if iterations else None
+    rows = read_workers(folder, last if isinstance(last, int) else None)
+    if status not in ("training", "stopping"):
+        for row in rows:
+            if row.get("state") in ("starting", "alive", "restarting"):
+                row["state"] = "stopped"
+    return rows
 
 
 @router.post("/models/{name}/stop")
@@ -257,10 +292,13 @@ def resume_model(name: str, request: Request, body: Resume | None = None, user: 
     max_time = body.max_time_s if body and body.max_time_s else None
     if max_time is not None and not (math.isfinite(max_time) and max_time > 0):
         raise bad_request(f"max time must be a positive number of seconds, got {max_time!r}", "max_time_s")
+    saved = json.loads((models_dir() / name / "laplab.json").read_text())
     if max_time is None:  # the saved budget, named in the job so that its wall-clock limit follows from it
-        max_time = json.loads((models_dir() / name / "laplab.json").read_text()).get("max_time_s")
+        max_time = saved.get("max_time_s")
+    episodes = (saved.get("hyperparameters") or {}).get("num_episodes_between_training") or 20
+    workers = _job_workers(request, body.workers if body else None, episodes)
     owner = service.owners()[name]
-    job = service.submit("resume", name, owner, {"max_time_s": max_time} if max_time else {})
+    job = service.submit("resume", name, owner, {**({"max_time_s": max_time} if max_time else {}), **workers})
     return {**service.describe(name), "job": job.to_dict()}
 
 
@@ -288,13 +326,14 @@ async def clone_model(name: str, body: CloneModel, request: Request, user: User 
     values = {"track": body.track or source_config.get("track"), "model_metadata": source_config["model_metadata"],
               "hyperparameters": body.hyperparameters or source_config.get("hyperparameters"),
               "max_time_s": body.max_time_s, "max_episodes": body.max_episodes}
-    _check_train_inputs(values)
+    config = _check_train_inputs(values)
+    workers = _job_workers(request, body.workers, config.hyper().num_episodes_between_training)
     source = body.reward_function
     if source is None:
         source = (models_dir() / name / "reward_function.py").read_text()
     await _validate_and_claim(request, user, body, source, values["track"], values["model_metadata"])
     params = {k: v for k, v in values.items() if v is not None and k != "model_metadata"}
-    job = service.submit("clone", body.name, user.id, {**params, "source": name}, reward_source=source)
+    job = service.submit("clone", body.name, user.id, {**params, **workers, "source": name}, reward_source=source)
     return {**service.describe(body.name), "job": job.to_dict()}
 
 

@@ -32,9 +32,11 @@ def ensure_admin(store: JobStore) -> str | None:
 
 
 def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_access: bool = False,
-               limits: JobLimits = JobLimits(), tick_s: float | None = None, warm_cache: bool = True) -> FastAPI:
+               limits: JobLimits = JobLimits(), tick_s: float | None = None, warm_cache: bool = True,
+               cluster=None) -> FastAPI:
     """The console app over ``$LAPLAB_HOME`` (database, secret key, model folders); ``warm_cache``
-    compiles numba's kernels once in the background for new users' jobs (:mod:`laplab.jobs.warmup`)."""
+    compiles numba's kernels once in the background for new users' jobs (:mod:`laplab.jobs.warmup`);
+    ``cluster`` (a :class:`laplab.cluster.console.RayCluster`) runs training jobs' rollout workers on Ray."""
     from laplab.console import api, api_exports, api_results, pages
     from laplab.console.service import TICK_S
 
@@ -42,7 +44,7 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
     home.mkdir(parents=True, exist_ok=True)
     store = JobStore()
     first_token = ensure_admin(store)
-    runner = LocalProcessRunner(limits, sandbox=sandbox)
+    runner = LocalProcessRunner(limits, sandbox=sandbox, cluster=cluster)
     service = ConsoleService(store, runner, workers or default_workers())
     interval = tick_s or TICK_S
 
@@ -75,6 +77,7 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
                   description="DeepRacer's console on laplab: models, training jobs, evaluations, leaderboard.")
     app.state.store, app.state.service, app.state.secret = store, service, load_secret(home)
     app.state.open_access, app.state.sandbox = open_access, runner.sandbox
+    app.state.cluster = cluster
     app.state.first_token = first_token
 
     @app.exception_handler(RequestValidationError)

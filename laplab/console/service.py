@@ -360,6 +360,9 @@ class ConsoleService:
                                                 "completion_rate", "eval_progress", "best_lap_time", "eval_lap_time",
                                                 "steps_per_second", "elapsed_s", "time_left_s")}
             self.hub.publish(job.model, "iteration", {**keep, "job": job.id, "progress": progress, "t": event["t"]})
+        elif event.get("type") == "phase":  # the running iteration: episodes collected, gradient steps, laps
+            keep = {k: event.get(k) for k in ("iteration", "phase", "done", "total", "env_steps", "elapsed_s")}
+            self.hub.publish(job.model, "phase", {**keep, "job": job.id})
 
     def _finish(self, job_id: int, returncode: int, runner_error: str | None = None) -> None:
         self._queue_changed = True

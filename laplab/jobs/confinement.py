@@ -11,7 +11,9 @@ Inside the sandbox ``$LAPLAB_HOME`` is ``/tmp/laplab``, on a fresh tmpfs holding
 
 The rest of the machine is read-only, ``/tmp`` is private, ``/root`` and ``/home`` are hidden except
 for the Python installation, there is no network, a new PID namespace (no ``/proc`` of the server)
-and no capabilities. See docs/console.md for the threat model.
+and no capabilities. One exception: a training job of a console started with ``--ray-address`` keeps
+the machine's network (``Mounts.network``, bubblewrap's ``--share-net``) to reach the Ray cluster;
+its filesystem view is the same. See docs/console.md for the threat model.
 """
 
 from __future__ import annotations
@@ -47,10 +49,12 @@ class JobLimits:
 
 @dataclass(frozen=True)
 class Mounts:
-    """Real paths a job may see: read-write and read-only, each real path -> path inside."""
+    """Real paths a job may see: read-write and read-only, each real path -> path inside; and
+    ``network``: whether the job keeps the machine's network (only to reach a Ray cluster)."""
 
     writable: dict[str, str]
     readonly: dict[str, str]
+    network: bool = False
 
 
 @lru_cache(maxsize=1)
@@ -79,6 +83,8 @@ def _python_dirs() -> list[str]:
 def _bwrap_prefix(mounts: Mounts) -> list[str]:
     cmd = ["bwrap", "--ro-bind", "/", "/", "--dev", "/dev", "--proc", "/proc", "--tmpfs", "/tmp",
            "--tmpfs", "/var/tmp", "--tmpfs", "/dev/shm", "--unshare-all", "--die-with-parent", "--cap-drop", "ALL"]
+    if mounts.network:  # every namespace but the network's stays private (a Ray cluster's job only)
+        cmd.append("--share-net")
     for hidden in ("/root", "/home", "/run", "/var/run"):
         if os.path.isdir(hidden) and not os.path.islink(hidden):
             cmd += ["--tmpfs", hidden]

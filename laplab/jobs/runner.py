@@ -19,7 +19,7 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Protocol
 
@@ -121,33 +121,43 @@ def request_stop(job_id: int) -> None:
         (folder / STOP_FILE).touch()
 
 
-def write_spec(job: Job) -> Path:
+def write_spec(job: Job, cluster: dict | None = None) -> Path:
+    """The job's ``spec.json``; ``cluster`` (address, workers) when its rollout workers run on Ray."""
     folder = job_folder(job.id)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "spec.json"
-    path.write_text(json.dumps({"id": job.id, "kind": job.kind, "model": job.model, "params": job.params}))
+    spec = {"id": job.id, "kind": job.kind, "model": job.model, "params": job.params}
+    if cluster is not None:
+        spec["cluster"] = cluster
+    path.write_text(json.dumps(spec))
     return path
 
 
 class LocalProcessRunner:
     """Each job a confined child process of the server (bubblewrap when it works, else limits only)."""
 
-    def __init__(self, limits: JobLimits = JobLimits(), sandbox: bool | None = None):
+    def __init__(self, limits: JobLimits = JobLimits(), sandbox: bool | None = None, cluster=None):
         self.limits = limits
         self.sandbox = bubblewrap_works() if sandbox is None else sandbox
+        self.cluster = cluster  # a laplab.cluster.console.RayCluster: training jobs' workers run there
         self._processes: dict[int, subprocess.Popen] = {}
         self._deadlines: dict[int, tuple[float, float]] = {}  # job id -> (monotonic deadline, limit s)
         self._overtime: dict[int, str] = {}
 
     def start(self, job: Job) -> int:
-        write_spec(job)
+        from laplab.cluster.console import CLUSTER_KINDS
+        on_cluster = self.cluster is not None and job.kind in CLUSTER_KINDS
+        write_spec(job, self.cluster.to_spec() if on_cluster else None)
         folder = job_folder(job.id)
         inside = f"{SANDBOX_HOME}/job" if self.sandbox else str(folder)
         home = SANDBOX_HOME if self.sandbox else str(laplab_home())
         env = clean_environment({"LAPLAB_HOME": home,
                                  "NUMBA_CACHE_DIR": f"{home}/cache/numba" if self.sandbox
-                                 else str(owner_cache(job.owner) / "numba")}, sandboxed=self.sandbox)
+                                 else str(owner_cache(job.owner) / "numba"),
+                                 **(self.cluster.job_environment() if on_cluster else {})}, sandboxed=self.sandbox)
         mounts = job_mounts(job)
+        if on_cluster:  # the network, to reach the cluster; the same files as any job
+            mounts = replace(mounts, network=True)
         command = [sys.executable, "-m", "laplab.jobs.worker", inside]
         process = start_confined(command, mounts, self._limits_for(job), folder / "log.txt", env, self.sandbox)
         self._processes[job.id] = process

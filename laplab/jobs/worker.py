@@ -99,6 +99,18 @@ class LiveFeed:
             self.files.write_camera(render_camera(self._texture, frame.poses[:1], self.camera)[0])
 
 
+class PhaseFeed:
+    """A trainer listener: where the running iteration stands (the trainer's PhaseProgress, about
+    once a second: episodes collected, in-process or by Ray workers, then gradient steps, then
+    evaluation laps) as ``phase`` lines of ``events.jsonl``."""
+
+    def __init__(self, files: JobFiles):
+        self.files = files
+
+    def on_progress(self, progress) -> None:
+        self.files.event("phase", **asdict(progress))
+
+
 def _train(files: JobFiles, spec: dict) -> None:
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import clone_config
@@ -106,26 +118,41 @@ def _train(files: JobFiles, spec: dict) -> None:
     from laplab.train.jobs import create_training_in_place, resume_training
 
     kind, name, params = spec["kind"], spec["model"], spec["params"]
+    cluster = spec.get("cluster")  # a console started with --ray-address: rollout workers on Ray
+    workers = int(params.get("workers") or (cluster or {}).get("workers") or 1) if cluster else 1
+    if params.get("workers") and not cluster:
+        print(f"this console has no Ray cluster now: the job collects in-process, not with {params['workers']} "
+              "rollout workers", flush=True)
     if kind == "resume":
-        trainer = resume_training(name, params.get("max_time_s"))
+        trainer = resume_training(name, params.get("max_time_s"), workers=workers)
     else:
         reward_path = str(files.folder / "reward_function.py") if (files.folder / "reward_function.py").exists() else None
         values = {k: params[k] for k in ("track", "model_metadata", "hyperparameters", "max_time_s", "max_episodes", "seed")
                   if params.get(k) is not None}
         if reward_path:
             values["reward_path"] = reward_path
+        values["workers"] = workers
         if kind == "clone":
             config, weights = clone_config(params["source"], values)
             trainer = create_training_in_place(name, config, init_weights=weights)
         else:
             trainer = create_training_in_place(name, replace(TrainConfig(), **values))
     trainer.subscribe(LiveFeed(files, trainer))
+    trainer.subscribe(PhaseFeed(files))
     files.event("started", iteration=trainer.iteration)
 
     def on_iteration(report) -> None:
         files.event("iteration", report=asdict(report))
 
-    result = trainer.run(callbacks=(on_iteration,), should_stop=files.should_stop)
+    collector = None
+    try:
+        if cluster:
+            from laplab.cluster.console import start_job_workers
+            collector = start_job_workers(trainer, cluster, workers, lambda message: print(message, flush=True))
+        result = trainer.run(callbacks=(on_iteration,), should_stop=files.should_stop)
+    finally:
+        if collector is not None:
+            collector.close()
     summary = {"stop_reason": result.stop_reason, "iterations": result.iterations, "episodes": result.episodes,
                "env_steps": result.env_steps, "elapsed_s": result.elapsed_s, "best_lap_time": result.best_lap_time}
     if result.error:

@@ -197,9 +197,11 @@ class Trainer:
         return act
 
     def _collect(self, should_abort, started: float) -> EpisodeBatch:
-        if self.collector is not None:  # rollout workers (laplab.cluster)
-            self._progress(started, "collect", 0, self.hp.num_episodes_between_training, force=True)
-            return self.collector.collect(self, should_abort)
+        if self.collector is not None:  # rollout workers (laplab.cluster), counting their episodes as they go
+            total = self.hp.num_episodes_between_training
+            self._progress(started, "collect", 0, total, force=True)
+            return self.collector.collect(self, should_abort, on_progress=lambda done, steps: self._progress(
+                started, "collect", done, total, steps))
         return collect_episodes(self.stepper, self.observations, self._policy(False), self.learner.values,
                                 should_abort=should_abort, on_poses=self._poses_hook(started))
 

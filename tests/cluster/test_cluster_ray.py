@@ -19,6 +19,7 @@ import pytest
 ray = pytest.importorskip("ray")
 
 from laplab.cluster.launch import attach_workers  # noqa: E402
+from laplab.cluster.status import read_workers  # noqa: E402
 from laplab.env.metadata import ModelMetadata  # noqa: E402
 from laplab.store.layout import model_folder  # noqa: E402
 from laplab.train.config import TrainConfig  # noqa: E402
@@ -108,6 +109,9 @@ def test_dead_workers_are_restarted_and_the_job_resumes_with_one_worker(local_ra
     assert marker.exists() and killed
     assert len(notices) == 2 and all("restarted it, collecting its 2 episodes again" in n for n in notices)
     assert sum(restarts) == 2
+    rows = read_workers(model_folder("faults").root, last_iteration=2)  # what the console's model page shows
+    assert [r["restarts"] for r in rows] == restarts and [r["state"] for r in rows] == ["stopped", "stopped"]
+    assert all(r["cause"] for r in rows if r["restarts"]) and [r["episodes"] for r in rows] == [4, 4]
     trainer.lock.release()
     # a dead learner leaves its last checkpoint: resume it in-process with one worker
     again = resume_training("faults", max_episodes=12, workers=1)
@@ -117,6 +121,7 @@ def test_dead_workers_are_restarted_and_the_job_resumes_with_one_worker(local_ra
     assert json.loads(folder.laplab_config.read_text())["workers"] == 1
     assert folder.simtrace_workers() == [0, 1] and folder.list_training_iterations() == [0, 1, 2]
     assert folder.worker_training_simtrace(0, 2).is_file()  # once multi-worker, always
+    assert read_workers(folder.root, last_iteration=3) == []  # the last session collected in-process
 
 
 def test_a_raising_reward_function_is_the_usual_error_not_a_restart(local_ray, tmp_path):

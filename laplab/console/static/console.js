@@ -287,6 +287,17 @@ const Console = (() => {
         ["Max time", duration(cfg.max_time_s)], ["Created", when(model.created)], ["Owner", model.owner], ["Description", model.description || "–"]]
         .map(([k, v]) => el("div", {}, el("span", {}, k), v ?? "–")));
       $("#reward-source").textContent = model.reward_function || "";
+      renderWorkers();
+    };
+    const renderWorkers = () => {  // the Ray rollout workers of the last session (none: no table)
+      const workers = model.workers || [];
+      $("#workers-card").hidden = !workers.length;
+      $("#workers tbody").replaceChildren(...workers.map(w => el("tr", {"data-worker": w.index, "data-state": w.state},
+        el("td", {class: "num"}, w.index), el("td", {}, w.track || "–"),
+        el("td", {title: w.node_id || ""}, [w.host, w.node_ip].filter(Boolean).join(" · ") || "–"),
+        el("td", {class: "num"}, w.pid ?? "–"), el("td", {class: "mono", title: w.actor_id || ""}, w.actor_id ? w.actor_id.slice(0, 12) : "–"),
+        el("td", {class: "num", title: w.cause || ""}, w.restarts ?? 0), el("td", {class: "num"}, w.episodes ?? 0),
+        el("td", {class: "num"}, w.iteration ?? "–"), el("td", {}, badge(w.state)))));
     };
     renderModel(); renderRows(); await live.setTrack(model.track || "classic_2018");
     if ((model.sensor || []).some(s => s.includes("CAMERA"))) {
@@ -299,9 +310,13 @@ const Console = (() => {
     $("#eval-track").replaceChildren(...tracks.map(t => el("option", {value: t.name, selected: t.name === model.track}, t.name)));
     const refresh = async () => { model = await api("GET", `/api/models/${name}`); rows = model.iterations || []; renderModel(); renderRows(); };
     const events = new EventSource(`/api/models/${name}/events`);
-    events.addEventListener("iteration", ev => { const r = JSON.parse(ev.data); if (!rows.length || rows[rows.length - 1].iteration < r.iteration) rows.push(r); $("#stat-progress").textContent = `${fmt(r.progress, 0)} %`; renderRows(); });
+    events.addEventListener("iteration", ev => { const r = JSON.parse(ev.data); if (!rows.length || rows[rows.length - 1].iteration < r.iteration) rows.push(r); $("#stat-progress").textContent = `${fmt(r.progress, 0)} %`; renderRows();
+      if ((model.workers || []).length || model.rollout_workers) api("GET", `/api/models/${name}`).then(m => { model.workers = m.workers; renderWorkers(); }).catch(() => {}); });
     events.addEventListener("status", ev => { const s = JSON.parse(ev.data); if (s.status) setStatus(["queued", "training", "stopping", "ready", "failed", "interrupted", "stopped"].includes(s.status) && !["evaluate", "export"].includes(s.kind) ? (s.status === "stopped" ? model.status : s.status) : model.status); refresh(); loadEvaluations(); });
     events.addEventListener("poses", ev => live.update(JSON.parse(ev.data)));
+    const phases = {collect: ["collecting", "episodes"], learn: ["learning", "gradient steps"], evaluate: ["evaluating", "laps"]};
+    events.addEventListener("phase", ev => { const p = JSON.parse(ev.data), [verb, unit] = phases[p.phase] || [p.phase, ""];
+      $("#stat-phase").textContent = `iteration ${p.iteration}: ${verb}` + (p.total ? ` ${p.done}/${p.total} ${unit}` : ""); });
     $("#stop").addEventListener("click", async () => { try { await api("POST", `/api/models/${name}/stop`); toast("stopping: the model keeps its last checkpoint"); refresh(); } catch (e) { toast(e.message); } });
     $("#resume").addEventListener("click", async () => { try { await api("POST", `/api/models/${name}/resume`, {}); toast("resumed"); refresh(); } catch (e) { toast(e.message); } });
     async function loadEvaluations() {
