@@ -45,9 +45,15 @@ def misbehaving_reward(body: str) -> str:
             "    return 1.0\n")
 
 
+# CPU seconds per job: a tiny training (start-up, validation sweep, 3-4 s of training) uses ~10-15, the
+# infinite loop spins until it reaches this limit
+CPU_SECONDS = 25
+
+
 @pytest.fixture(scope="module")
 def confined_console(tmp_path_factory, serve_console):
-    with serve_console(tmp_path_factory.mktemp("isolation-home"), workers=3, limits=JobLimits(cpu_seconds=45)) as running:
+    with serve_console(tmp_path_factory.mktemp("isolation-home"), workers=3,
+                       limits=JobLimits(cpu_seconds=CPU_SECONDS)) as running:
         yield running
 
 

@@ -75,6 +75,11 @@ def test_train_watch_stop_evaluate_leaderboard_download_import_clone(console):
     started = admin.post("/api/models/live-model/evaluations", json={"trials": 2, "off_track_penalty": 3})
     assert started.status_code == 202
     job_id = started.json()["id"]
+    # the ONNX download is built on the spot (a child process of the server) while the evaluation job runs
+    onnx = admin.get("/api/models/live-model/download?format=onnx")
+    assert onnx.status_code == 200
+    with tarfile.open(fileobj=io.BytesIO(onnx.content)) as archive:
+        assert {"model.onnx", "model_metadata.json"} <= set(archive.getnames())
     deadline = time.monotonic() + 240
     while (evaluation := admin.get(f"/api/models/live-model/evaluations/{job_id}").json())["status"] in ("queued", "running"):
         assert time.monotonic() < deadline
@@ -84,6 +89,14 @@ def test_train_watch_stop_evaluate_leaderboard_download_import_clone(console):
     for trial in evaluation["trials"]:
         assert {"lap_time", "progress", "status", "off_track_count"} <= set(trial)
     assert evaluation["summary"]["optimal_lap_time"] > 0
+
+    # the clone trains (a job) while the report, the leaderboard, the download and the import are checked
+    bad_clone = admin.post("/api/models/live-model/clone",
+                           json={"name": "clone-bad", "model_metadata": {"action_space": [{"steering_angle": 0, "speed": 1},
+                                                                                          {"steering_angle": 10, "speed": 1}]}})
+    assert bad_clone.status_code == 400 and "action space" in bad_clone.json()["detail"]["message"]
+    clone = admin.post("/api/models/live-model/clone", json={"name": "live-clone", "max_time_s": 4})
+    assert clone.status_code == 201, clone.text
 
     report = admin.get("/models/live-model/report", follow_redirects=True)
     assert report.status_code == 200 and str(report.url).endswith("/models/live-model/report/"), report.text[:300]
@@ -100,10 +113,6 @@ def test_train_watch_stop_evaluate_leaderboard_download_import_clone(console):
 
     tar = admin.get("/api/models/live-model/download?format=tar")
     assert tar.status_code == 200 and tar.content[:2] == b"\x1f\x8b"
-    onnx = admin.get("/api/models/live-model/download?format=onnx")
-    assert onnx.status_code == 200
-    with tarfile.open(fileobj=io.BytesIO(onnx.content)) as archive:
-        assert {"model.onnx", "model_metadata.json"} <= set(archive.getnames())
 
     user = console.add_user("importer")
     imported = user.post("/api/models/import", files={"file": ("live.tar.gz", tar.content)}, data={"name": "imported-copy"})
@@ -112,12 +121,6 @@ def test_train_watch_stop_evaluate_leaderboard_download_import_clone(console):
     assert user.post("/api/models/import", files={"file": ("live.tar.gz", tar.content)},
                      data={"name": "imported-copy"}).status_code == 400
 
-    bad_clone = admin.post("/api/models/live-model/clone",
-                           json={"name": "clone-bad", "model_metadata": {"action_space": [{"steering_angle": 0, "speed": 1},
-                                                                                          {"steering_angle": 10, "speed": 1}]}})
-    assert bad_clone.status_code == 400 and "action space" in bad_clone.json()["detail"]["message"]
-    clone = admin.post("/api/models/live-model/clone", json={"name": "live-clone", "max_time_s": 4})
-    assert clone.status_code == 201, clone.text
     cloned = console.wait_for(admin, "live-clone", ("ready", "failed"), timeout_s=240)
     assert cloned["status"] == "ready", cloned
     assert cloned["track"] == "oval"

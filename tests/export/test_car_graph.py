@@ -12,40 +12,22 @@ pytest.importorskip("torch", reason="the graph is built from laplab's torch netw
 pytest.importorskip("tensorflow", reason="model.pb needs tensorflow-cpu: pip install 'laplab[deepracer]'")
 pytest.importorskip("openvino", reason="the car's conversion needs openvino: pip install 'laplab[deepracer]'")
 
-from export_networks import (CASES, SAMPLES, SHALLOW, case_id, make_network,  # noqa: E402
-                             varied_observations)
+from export_networks import CASES, SAMPLES, SHALLOW, case_id  # noqa: E402
 from laplab.agents.onnx_export import random_observations  # noqa: E402
 from laplab.export.openvino_model import OpenVinoPolicy, car_optimizer_inputs  # noqa: E402
-from laplab.export.policy_layers import policy_layers, reference_output  # noqa: E402
+from laplab.export.policy_layers import reference_output  # noqa: E402
 from laplab.export.tensorflow_graph import (FrozenGraph, graph_bytes, graph_feed, input_node_name,  # noqa: E402
                                             output_node_name)
 
 
-@pytest.fixture(scope="module")
-def built(request, tmp_path_factory):
-    cache = {}
-
-    def get(case):
-        if case not in cache:
-            model, space = make_network(*case)
-            layers = policy_layers(model, space, list(case[0]))
-            path = tmp_path_factory.mktemp("graphs") / "model.pb"
-            path.write_bytes(graph_bytes(layers))
-            cache[case] = (model, space, layers, path)
-        return cache[case]
-    return get
-
-
 @pytest.mark.parametrize("case", CASES, ids=case_id)
-def test_tensorflow_graph_matches_the_torch_policy(built, case):
+def test_tensorflow_graph_matches_the_torch_policy(built_case, case):
     sensors, _, algorithm, kind = case
-    model, space, layers, path = built(case)
-    graph = FrozenGraph(path.read_bytes(), output_node_name(algorithm))
+    built = built_case(case)
+    model, observations, expected = built.model, built.observations, built.expected
+    graph, got = built.frozen(output_node_name(algorithm))
     expected_inputs = {spec.name: (None, *spec.shape[1:]) for spec in car_optimizer_inputs(sensors, algorithm)}
     assert graph.placeholders == expected_inputs  # the names and layouts the car's optimizer passes
-    observations = varied_observations(space, SAMPLES, seed=11)
-    got = graph.run(graph_feed(layers, observations))
-    expected = reference_output(model, observations)
     assert got.shape == (SAMPLES, 5 if kind == "discrete" else 2)
     assert np.abs(got - expected).max() <= 1e-5
     assert np.ptp(expected, axis=0).max() > 0.05  # not a comparison of near-constant outputs
@@ -57,15 +39,14 @@ def test_tensorflow_graph_matches_the_torch_policy(built, case):
 
 
 @pytest.mark.parametrize("case", CASES, ids=case_id)
-def test_openvino_runs_the_graph_as_the_car_does(built, case):
+def test_openvino_runs_the_graph_as_the_car_does(built_case, case):
     sensors, _, algorithm, kind = case
-    model, space, layers, path = built(case)
+    built = built_case(case)
     inputs = car_optimizer_inputs(sensors, algorithm)
-    policy = OpenVinoPolicy(path, inputs)
+    policy = OpenVinoPolicy(built.graph_path, inputs)
     assert any(name.split(":")[0] == output_node_name(algorithm) for name in policy.output_names)
-    observations = varied_observations(space, SAMPLES, seed=12)
-    got = policy.run_batch(graph_feed(layers, observations))
-    expected = reference_output(model, observations)
+    got = policy.run_batch(graph_feed(built.layers, built.observations))
+    expected = built.expected
     assert np.abs(got - expected).max() <= 1e-4
     if kind == "discrete":
         assert np.array_equal(got.argmax(axis=1), expected.argmax(axis=1))
@@ -81,10 +62,11 @@ def test_input_names_follow_the_model_optimizer():
     assert shapes == [(1, 120, 160, 2), (1, 8)]
 
 
-def test_old_single_camera_input_name(tmp_path):
+def test_old_single_camera_input_name(built_case):
     """DeepRacer's first models name their camera input observation/observation; the graph can too."""
-    model, space = make_network(("FRONT_FACING_CAMERA",), SHALLOW, "clipped_ppo", "discrete")
-    layers = policy_layers(model, space, ["FRONT_FACING_CAMERA"])
+    assert CASES[0] == (("FRONT_FACING_CAMERA",), SHALLOW, "clipped_ppo", "discrete")
+    built = built_case(CASES[0])
+    model, space, layers = built.model, built.space, built.layers
     name = "main_level/agent/main/online/network_0/observation/observation"
     graph = FrozenGraph(graph_bytes(layers, {"FRONT_FACING_CAMERA": name}), output_node_name("clipped_ppo"))
     assert list(graph.placeholders) == [name]

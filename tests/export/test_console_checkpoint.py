@@ -12,13 +12,13 @@ pytest.importorskip("torch", reason="the checkpoint is built from laplab's torch
 tf = pytest.importorskip("tensorflow", reason="the checkpoint needs tensorflow-cpu: pip install 'laplab[deepracer]'")
 
 import torch  # noqa: E402
-from export_networks import CASES, DEEP, SAMPLES, SHALLOW, case_id, make_network, varied_observations  # noqa: E402
+from export_networks import CASES, DEEP, SHALLOW, case_id  # noqa: E402
 
 from laplab.agents.networks import observation_to_tensor  # noqa: E402
-from laplab.export.policy_layers import policy_layers, reference_output, value_layers  # noqa: E402
+from laplab.export.policy_layers import value_layers  # noqa: E402
 from laplab.export.tensorflow_checkpoint import (channels_last_rows, checkpoint_files, restore_checkpoint,  # noqa: E402
                                                  rl_coach_variables)
-from laplab.export.tensorflow_graph import FrozenGraph, graph_bytes, graph_feed, output_node_name  # noqa: E402
+from laplab.export.tensorflow_graph import graph_feed, output_node_name  # noqa: E402
 
 PREFIX = "7_Step-2345.ckpt"
 # camera + lidar, the three camera networks, PPO discrete / continuous and SAC
@@ -27,16 +27,16 @@ PPO_ROOT = "main_level/agent/main/online"
 
 
 @pytest.fixture(scope="module")
-def checkpoint(tmp_path_factory):
-    """``checkpoint(case)`` -> (model, space, layers, value, written files, folder), built once per case."""
+def checkpoint(built_case, tmp_path_factory):
+    """``checkpoint(case)`` -> (model, space, layers, value, written files, folder), built once per case
+    (the policy itself: ``built_case``, shared with the graph tests)."""
     cache = {}
 
     def get(case):
         if case not in cache:
-            model, space = make_network(*case)
-            sensors = list(case[0])
-            layers = policy_layers(model, space, sensors)
-            value = value_layers(model, space, sensors) if case[2] == "clipped_ppo" else None
+            built = built_case(case)
+            model, space, layers = built.model, built.space, built.layers
+            value = value_layers(model, space, list(case[0])) if case[2] == "clipped_ppo" else None
             written = checkpoint_files(PREFIX, layers, value)
             folder = tmp_path_factory.mktemp("checkpoint") / "model"
             folder.mkdir()
@@ -48,7 +48,7 @@ def checkpoint(tmp_path_factory):
 
 
 @pytest.mark.parametrize("case", CHECKPOINT_CASES, ids=case_id)
-def test_checkpoint_restores_laplabs_policy_and_value(checkpoint, case):
+def test_checkpoint_restores_laplabs_policy_and_value(checkpoint, built_case, case):
     model, space, layers, value, written, folder = checkpoint(case)
     assert sorted(written.files) == sorted([f"{PREFIX}.index", f"{PREFIX}.data-00000-of-00001", f"{PREFIX}.meta",
                                             "checkpoint"])
@@ -62,11 +62,11 @@ def test_checkpoint_restores_laplabs_policy_and_value(checkpoint, case):
         assert np.array_equal(reader.get_tensor(name), array), name
 
     restored = restore_checkpoint(folder, layers, value)
-    observations = varied_observations(space, SAMPLES, seed=21)
+    built = built_case(case)  # SAMPLES varied observations, the torch policy's and model.pb's outputs on them
+    observations, torch_policy = built.observations, built.expected
     feed = graph_feed(layers, observations)
     got = restored.run(feed)
-    torch_policy = reference_output(model, observations)
-    frozen = FrozenGraph(graph_bytes(layers), output_node_name(layers.algorithm)).run(feed)
+    frozen = built.frozen(output_node_name(layers.algorithm))[1]
     assert np.abs(got - torch_policy).max() <= 1e-5
     assert np.abs(got - frozen).max() <= 1e-5
     assert np.ptp(torch_policy, axis=0).max() > 0.05  # outputs that differ between observations
