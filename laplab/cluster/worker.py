@@ -12,6 +12,7 @@ learner broadcasts each iteration.
 from __future__ import annotations
 
 import os
+import sys
 import time
 from dataclasses import dataclass, replace
 from typing import Any
@@ -124,12 +125,14 @@ class RolloutWorker:
         """Where the worker runs: ``host`` (name), ``node_ip``, ``node_id`` (Ray's), ``pid``, ``actor_id``."""
         import socket
         facts = {"host": socket.gethostname(), "pid": os.getpid(), "node_ip": None, "node_id": None, "actor_id": None}
+        ray = sys.modules.get("ray")
+        if ray is None or not ray.is_initialized():  # a plain object, not an actor: asking Ray would start one
+            return facts
         try:
-            import ray
             context = ray.get_runtime_context()
             facts.update(node_id=context.get_node_id(), actor_id=context.get_actor_id(),
                          node_ip=ray.util.get_node_ip_address())
-        except Exception:  # noqa: BLE001 - not in a Ray actor (a plain object in tests)
+        except Exception:  # noqa: BLE001 - facts Ray cannot give stay None
             pass
         return facts
 

@@ -40,3 +40,5 @@ def test_collect_sets_the_workers_torch_threads_in_the_calling_thread():
     thread.start()
     thread.join(120)
     assert seen == {"threads": {1}, "episodes": 2}
+    import sys
+    assert "ray" not in sys.modules or not sys.modules["ray"].is_initialized()  # a plain object starts no Ray
