@@ -62,6 +62,18 @@ def check_exportable(metadata: dict, stack_size: int, allowed: tuple[str, ...], 
                              "(stack_size 1).")
 
 
+def check_model_exportable(name: str, allowed: tuple[str, ...] = CAR_SENSORS,
+                           where: str = "the DeepRacer car") -> None:
+    """:func:`check_exportable` from model ``name``'s files alone (no torch, no TensorFlow): a job
+    refuses a model the car cannot run before it pays for loading either."""
+    from laplab.store.layout import model_folder
+    folder = model_folder(name)
+    if not folder.model_metadata.exists():
+        return  # the export itself names what is missing
+    hyper = folder.read_laplab_config().get("hyperparameters", {}) if folder.laplab_config.exists() else {}
+    check_exportable(folder.read_model_metadata(), int(hyper.get("stack_size", 1)), allowed, where)
+
+
 def car_metadata(metadata: dict) -> dict:
     """The model_metadata.json the car gets. laplab's ``lidar_config`` (DISCRETIZED_SECTOR_LIDAR's
     num_sectors / num_values_per_sector / clipping_dist) is not the car's (num_values, min_angle, ...):

@@ -186,6 +186,12 @@ def _export(files: JobFiles, spec: dict) -> None:
     import tarfile
     name, params = spec["model"], spec["params"]
     fmt, checkpoint = params["format"], params.get("checkpoint", "best")
+    from laplab.export.car import CAR_SENSORS, CONSOLE_SENSORS, CarExportError, check_model_exportable
+    try:  # a model the car cannot run is refused before TensorFlow and torch load (seconds each)
+        check_model_exportable(name, *((CAR_SENSORS, "the DeepRacer car") if fmt == "car"
+                                       else (CONSOLE_SENSORS, "the DeepRacer console")))
+    except CarExportError as exc:
+        raise ExportJobError(str(exc)) from None
     try:
         import tensorflow  # noqa: F401  (fail early, with the install line)
         from laplab.export.car import CarExportError, export_car
