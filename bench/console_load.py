@@ -116,6 +116,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
             answer.raise_for_status()
         stop = threading.Event()
         latencies: list[float] = []
+        slow: list[tuple[float, float]] = []  # (s since the load started, latency s) of requests over 100 ms
         deliveries: list[float] = []
         errors = [0]
 
@@ -130,6 +131,8 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
                         ok = False
                     if ok:
                         latencies.append(time.perf_counter() - t0)
+                        if latencies[-1] > 0.1:
+                            slow.append((t0 - load_started, latencies[-1]))
                     else:
                         errors[0] += 1
                     stop.wait(think)
@@ -152,6 +155,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
         threads = [threading.Thread(target=api_client, daemon=True) for _ in range(clients)]
         threads += [threading.Thread(target=stream_client, args=(f"served-{i % 2}",), daemon=True) for i in range(streams)]
         cpu_start, clients_start, wall_start = cpu_seconds(server.pid), time.process_time(), time.monotonic()
+        load_started = time.perf_counter()
         for t in threads:
             t.start()
         end = time.monotonic() + seconds + 600
@@ -167,7 +171,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
             t.join(5)
         cpu = None if cpu_start is None or cpu_end is None else cpu_end - cpu_start
         return {"latencies": latencies, "deliveries": deliveries, "errors": errors[0], "statuses": statuses, "cpu": cpu,
-                "clients_cpu": clients_cpu, "wall": wall, "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)]}
+                "clients_cpu": clients_cpu, "wall": wall, "slow": slow, "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)]}
     finally:
         admin.close()
         server.terminate()
@@ -260,6 +264,9 @@ def main() -> None:
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end")
     print(f"GET /api/models: {len(lat)} requests from {args.clients} clients (think {args.think:g} s): "
           f"p50 {1000 * percentile(lat, 50):.1f} ms, p99 {1000 * percentile(lat, 99):.1f} ms, errors {served['errors']}")
+    if served["slow"]:
+        when = ", ".join(f"{1000 * lat_s:.0f} ms at {t:.1f} s" for t, lat_s in sorted(served["slow"])[:12])
+        print(f"  {len(served['slow'])} requests over 100 ms, the first: {when}")
     if served["cpu"] is not None and lat:
         print(f"server CPU during the load: {served['cpu']:.1f} s, {1000 * served['cpu'] / len(lat):.2f} ms per "
               f"GET /api/models answered (streams, scheduler and the other requests included); the client "

@@ -9,7 +9,7 @@ weights (no learning between iterations, so every variant drives the same policy
   back, the merge);
 - ``ray xN``: N workers sharing the cars (scaling; on a 2-core machine only 1 -> 2 means anything).
 
-One warm-up iteration per variant is not timed (process start, JIT compilation). Prints env steps/s,
+Two warm-up iterations per variant are not timed (process start, JIT compilation). Prints env steps/s,
 the Ray x1 / in-process ratio and the parallel efficiency (steps/s of N workers / (N x steps/s of 1)).
 
 Usage:
@@ -41,7 +41,8 @@ def make_trainer(name: str, sensor: str, episodes: int, workers: int):
 def steps_per_second(trainer, iterations: int) -> tuple[float, float]:
     """(env steps per wall second of the collection step, the share of that wall time the slowest
     worker spent driving: the rest is Ray's overhead, broadcast, transfer and merge)."""
-    trainer._collect(lambda: False, time.perf_counter())  # warm-up: JIT, first frames
+    for _ in range(2):  # warm-up: JIT, first frames, the allocator (a first iteration is not enough for camera)
+        trainer._collect(lambda: False, time.perf_counter())
     steps, driving, started = 0, 0.0, time.perf_counter()
     for _ in range(iterations):
         batch = trainer._collect(lambda: False, time.perf_counter())

@@ -97,13 +97,15 @@ def _take(observations: Any, index: np.ndarray) -> Any:
 
 
 def limit_torch_threads(num_threads: int | None = None) -> None:
-    """Set torch's intra-op threads to ``num_threads``, or (None) cap them at the CPUs this
-    process may use, so learners in worker processes do not oversubscribe the machine."""
+    """Set torch's intra-op threads to ``num_threads``, or (None) to the CPUs this process may use,
+    at most ``$OMP_NUM_THREADS`` when set (so learners in worker processes do not oversubscribe the
+    machine, and a camera learner built after a one-thread vector learner in the same process gets
+    its cores back)."""
     available = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    if num_threads is not None:
-        torch.set_num_threads(max(1, int(num_threads)))
-    elif torch.get_num_threads() > available:
-        torch.set_num_threads(available)
+    omp = os.environ.get("OMP_NUM_THREADS", "")
+    if omp.isdigit() and int(omp) > 0:
+        available = min(available, int(omp))
+    torch.set_num_threads(max(1, int(num_threads)) if num_threads is not None else available)
 
 
 def keep_freed_memory() -> bool:

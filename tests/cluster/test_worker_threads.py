@@ -42,3 +42,19 @@ def test_collect_sets_the_workers_torch_threads_in_the_calling_thread():
     assert seen == {"threads": {1}, "episodes": 2}
     import sys
     assert "ray" not in sys.modules or not sys.modules["ray"].is_initialized()  # a plain object starts no Ray
+
+
+def test_a_learner_without_a_thread_count_gets_the_processs_cores_whatever_came_before(monkeypatch):
+    """A camera learner built after a one-thread vector learner in the same process (a notebook, a
+    bench) gets its cores back; ``$OMP_NUM_THREADS`` still caps it (console jobs set 1)."""
+    import os
+
+    from laplab.agents.ppo import limit_torch_threads
+    cores = len(os.sched_getaffinity(0))
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    limit_torch_threads(1)
+    limit_torch_threads(None)
+    assert torch.get_num_threads() == cores
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    limit_torch_threads(None)
+    assert torch.get_num_threads() == 1
