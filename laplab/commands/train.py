@@ -115,10 +115,13 @@ class _StopFlag:
     def __init__(self):
         self.event = threading.Event()
         self._previous = {}
+        self._depth = 0  # entered again by run_trainer: the handlers are installed once
 
     def __enter__(self):
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            self._previous[sig] = signal.signal(sig, self._handle)
+        self._depth += 1
+        if self._depth == 1 and threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self._handle)
         return self
 
     def _handle(self, signum, frame):
@@ -127,15 +130,19 @@ class _StopFlag:
         self.event.set()
 
     def __exit__(self, *exc):
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
+        self._depth -= 1
+        if self._depth == 0:
+            for sig, handler in self._previous.items():
+                signal.signal(sig, handler)
+            self._previous = {}
 
 
 def run_trainer(trainer, console: Console, quiet: bool, reward_timeout: float | None = None,
-                ray_address: str | None = None) -> int:
+                ray_address: str | None = None, stop: _StopFlag | None = None) -> int:
     """Run ``trainer`` with the progress display, Ctrl-C handling, the reward watchdog and reports
     to the job's supervisor (when there is one); with several workers (``trainer.config.workers``) or
-    a ``ray_address``, its episodes are collected by rollout workers on Ray."""
+    a ``ray_address``, its episodes are collected by rollout workers on Ray. ``stop``: a flag entered
+    before the trainer was built (a Ctrl-C during set-up then stops the job at its first check)."""
     from laplab.jobs.supervisor import job_limits, report
     from laplab.reward.watchdog import RewardWatchdog, WatchdogLimits
     from laplab.train.progress import ProgressPrinter
@@ -149,7 +156,7 @@ def run_trainer(trainer, console: Console, quiet: bool, reward_timeout: float | 
     try:
         collector = _start_workers(trainer, console, ray_address, watch)
         printer = ProgressPrinter(console, trainer, quiet)
-        with _StopFlag() as stop, RewardWatchdog(watch):
+        with (stop or _StopFlag()) as stop, RewardWatchdog(watch):
             result = trainer.run(callbacks=(printer, lambda r: report(iteration=r.iteration)),
                                  should_stop=stop.event.is_set)
     finally:
@@ -228,7 +235,7 @@ def run_train(args: argparse.Namespace) -> int:
         values["domain_randomization"] = bool(args.domain_randomization)
         values["precision"] = args.precision
     workers, device = _scale(args)
-    with store_session(args, "train") as store:
+    with _StopFlag() as stop, store_session(args, "train") as store:  # Ctrl-C while setting up: a clean stop
         if args.resume:
             listeners = store.resume_job(args.resume) if store else ()
             trainer = resume_training(args.resume, overrides["max_time_s"], overrides["max_episodes"],
@@ -243,7 +250,7 @@ def run_train(args: argparse.Namespace) -> int:
             trainer = create_training(args.name, config, listeners=listeners, device=device)
         if store:
             trainer.location = store.remote.url(trainer.folder.name)  # what the summary names
-        return run_trainer(trainer, console, args.quiet, args.reward_timeout, args.ray_address)
+        return run_trainer(trainer, console, args.quiet, args.reward_timeout, args.ray_address, stop)
 
 
 def run_clone(args: argparse.Namespace) -> int:
@@ -253,7 +260,7 @@ def run_clone(args: argparse.Namespace) -> int:
 
     console = Console(highlight=False, soft_wrap=True)
     workers, device = _scale(args)
-    with store_session(args, "clone") as store:
+    with _StopFlag() as stop, store_session(args, "clone") as store:  # Ctrl-C while setting up: a clean stop
         if store:
             store.pull(args.source, ("best",), without_traces)
         config, weights = clone_config(args.source, {**_overrides(args), "workers": workers},
@@ -264,4 +271,4 @@ def run_clone(args: argparse.Namespace) -> int:
         console.print(f"cloned {args.source} -> {args.name}")
         if store:
             trainer.location = store.remote.url(args.name)  # what the summary names
-        return run_trainer(trainer, console, args.quiet, args.reward_timeout, args.ray_address)
+        return run_trainer(trainer, console, args.quiet, args.reward_timeout, args.ray_address, stop)
