@@ -109,7 +109,7 @@ def connect_ray(address: str | None, workers: int) -> bool:
     except Exception as exc:  # Ray's own start-up errors: a paragraph, not a traceback
         where = f"join the Ray cluster at {address}" if address else "start a local Ray"
         hint = "an overloaded machine can make Ray's start time out; try again, or use fewer --workers"
-        if address and address.startswith("ray://"):
+        if client:
             hint = ("is its client server up, and the same Ray and Python here and there? A cluster with token "
                     "authentication (Ray's default) needs its token here: RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or "
                     "~/.ray/auth_token (`ray get-auth-token` on the head prints it)")

@@ -15,7 +15,6 @@ from __future__ import annotations
 import importlib.util
 import ipaddress
 import socket
-import time
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -118,13 +117,6 @@ def start_job_workers(trainer, cluster: dict, workers: int, say: Callable[[str],
     """A console job's rollout workers on ``cluster`` (the job spec's ``cluster``: address, workers):
     restarts go to ``say`` (the job log) and the model folder's ``logs/workers.log``. Returns the
     collector (close it when the job ends)."""
-    from laplab.cluster.launch import attach_workers
-    log = trainer.folder.root / "logs" / "workers.log"
-
-    def notify(message: str) -> None:
-        say(message)
-        log.parent.mkdir(parents=True, exist_ok=True)
-        with open(log, "a") as handle:
-            handle.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {message}\n")
+    from laplab.cluster.launch import attach_workers, logged_notify
     say(f"starting {workers} rollout worker{'s' if workers > 1 else ''} on the Ray cluster at {cluster['address']}")
-    return attach_workers(trainer, workers, cluster["address"], notify)
+    return attach_workers(trainer, workers, cluster["address"], logged_notify(trainer, say))

@@ -9,6 +9,7 @@ the workers and plugs them into the trainer; a multi-track job also evaluates on
 from __future__ import annotations
 
 import os
+import time
 from typing import Callable
 
 from laplab.cluster.collector import RayCollector
@@ -61,6 +62,19 @@ def validate_reward_on_tracks(config, reward_fn) -> None:
         report = validate_reward_function(reward_fn, load_track(name, reverse=reverse), actions)
         if not report.passed:
             raise report.error
+
+
+def logged_notify(trainer, say: Callable[[str], None]) -> Callable[[str], None]:
+    """A ``notify`` for :func:`attach_workers`: each message (a restart) to ``say`` and, time-stamped,
+    to the model folder's ``logs/workers.log``."""
+    log = trainer.folder.root / "logs" / "workers.log"
+
+    def notify(message: str) -> None:
+        say(message)
+        log.parent.mkdir(parents=True, exist_ok=True)
+        with open(log, "a") as handle:
+            handle.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {message}\n")
+    return notify
 
 
 def attach_workers(trainer, workers: int, ray_address: str | None = None,

@@ -60,7 +60,8 @@ def workers_file(model_root: Path | str) -> Path:
 
 def write_workers(path: Path, records: list[WorkerRecord], since_iteration: int = 0) -> None:
     """Rewrite ``path`` with ``records`` of a session that started after iteration ``since_iteration``
-    (a reader never sees half a file)."""
+    (a reader never sees half a file). Not :func:`laplab.store.atomic.atomic_write_json`: this runs
+    every iteration for a display, and its fsyncs would cost the collection step for nothing."""
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     document = {"updated": time.time(), "since_iteration": int(since_iteration), "workers": [asdict(r) for r in records]}

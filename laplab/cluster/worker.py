@@ -141,16 +141,14 @@ class RolloutWorker:
         if board is None:
             return None
         from laplab.cluster.status import REPORT_INTERVAL_S
-        from laplab.sim.state import IN_PROGRESS
+        from laplab.sim.state import episodes_done_and_steps
         last = [time.monotonic()]
 
         def hook(poses, sim_time) -> None:
             now = time.monotonic()
             if now - last[0] >= REPORT_INTERVAL_S:
                 last[0] = now
-                state = self.sim.state
-                board.report.remote(self.setup.index, policy_version, int((state.status != IN_PROGRESS).sum()),
-                                    int(state.steps.sum()))
+                board.report.remote(self.setup.index, policy_version, *episodes_done_and_steps(self.sim.state))
         return hook
 
     def collect(self, policy: dict, policy_version: int, episodes_before: int, board=None) -> WorkerResult:

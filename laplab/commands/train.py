@@ -174,16 +174,8 @@ def _start_workers(trainer, console: Console, ray_address: str | None, watch):
     workers = trainer.config.workers
     if workers <= 1 and not ray_address:
         return None
-    import time
-
-    from laplab.cluster.launch import attach_workers
-    log = trainer.folder.root / "logs" / "workers.log"
-
-    def notify(message: str) -> None:
-        console.print(f"[yellow]{message}[/yellow]")
-        log.parent.mkdir(parents=True, exist_ok=True)
-        with open(log, "a") as handle:
-            handle.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} {message}\n")
+    from laplab.cluster.launch import attach_workers, logged_notify
+    notify = logged_notify(trainer, lambda message: console.print(f"[yellow]{message}[/yellow]"))
     console.print(f"starting {workers} rollout worker{'s' if workers > 1 else ''} on "
                   f"{'the Ray cluster at ' + ray_address if ray_address else 'a local Ray'}")
     return attach_workers(trainer, workers, ray_address, notify, watch.timeout_s, watch.wait_timeout_s)

@@ -119,7 +119,7 @@ def _train(files: JobFiles, spec: dict) -> None:
 
     kind, name, params = spec["kind"], spec["model"], spec["params"]
     cluster = spec.get("cluster")  # a console started with --ray-address: rollout workers on Ray
-    workers = int(params.get("workers") or (cluster or {}).get("workers") or 1) if cluster else 1
+    workers = int(params.get("workers") or cluster.get("workers") or 1) if cluster else 1
     if params.get("workers") and not cluster:
         print(f"this console has no Ray cluster now: the job collects in-process, not with {params['workers']} "
               "rollout workers", flush=True)
@@ -194,7 +194,7 @@ def _export(files: JobFiles, spec: dict) -> None:
         raise ExportJobError(str(exc)) from None
     try:
         import tensorflow  # noqa: F401  (fail early, with the install line)
-        from laplab.export.car import CarExportError, export_car
+        from laplab.export.car import export_car
         from laplab.export.console import export_console
     except ImportError as exc:
         raise ExportJobError(TENSORFLOW_MISSING.format(exc)) from None

@@ -78,6 +78,11 @@ class SimState(NamedTuple):
     episode: np.ndarray  # int64, episodes started by this car slot
 
 
+def episodes_done_and_steps(state: SimState) -> tuple[int, int]:
+    """(cars whose episode has ended, steps driven by all cars): a collection's progress."""
+    return int((state.status != IN_PROGRESS).sum()), int(state.steps.sum())
+
+
 _INT_FIELDS = {"segment", "steps", "reverse_count", "immobile_count", "status", "direction", "wheels_on", "episode"}
 
 

@@ -26,7 +26,7 @@ from laplab.sim.state import EpisodeParams
 from laplab.track.geometry import Track
 from laplab.train.collect import CollectionAborted, EpisodeBatch, collect_episodes
 from laplab.train.config import TrainConfig
-from laplab.sim.state import IN_PROGRESS
+from laplab.sim.state import episodes_done_and_steps
 from laplab.train.events import CheckpointReady, IterationEpisodes, IterationReport, PhaseProgress, PosesFrame
 from laplab.vehicle.params import vehicle_preset
 
@@ -170,9 +170,8 @@ class Trainer:
             if wants_poses:
                 self._emit("on_poses", PosesFrame(iteration, poses, sim_time))
             if self._progress_due():  # counting the cars every step would be wasted work
-                state = self.sim.state
-                self._progress(started, "collect", int((state.status != IN_PROGRESS).sum()), total,
-                               int(state.steps.sum()))
+                done, steps = episodes_done_and_steps(self.sim.state)
+                self._progress(started, "collect", done, total, steps)
         return hook
 
     def _progress_due(self) -> bool:
@@ -230,9 +229,8 @@ class Trainer:
 
             def hook(poses, sim_time) -> None:
                 if self._progress_due():
-                    state = self.eval_sim.state
-                    self._progress(started, "evaluate", int((state.status != IN_PROGRESS).sum()), total,
-                                   int(state.steps.sum()))
+                    done, steps = episodes_done_and_steps(self.eval_sim.state)
+                    self._progress(started, "evaluate", done, total, steps)
         return collect_episodes(self.eval_stepper, self.eval_observations, self._policy(True),
                                 keep_observations=False, ndist=starts, should_abort=should_abort, on_poses=hook)
 
