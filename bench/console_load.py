@@ -36,6 +36,10 @@ from pathlib import Path
 import httpx
 
 TOKEN = "bench-admin-token"
+# The bench speaks plain HTTP on loopback. httpx builds a TLS context (the CA bundle, 60-200 ms holding
+# the GIL on this host) for every client unless told not to verify; 70 clients doing that at once
+# stalled every client's first request by 1-2 s in session 5's runs.
+PLAIN_HTTP = {"verify": False}
 HYPERPARAMETERS = {"num_episodes_between_training": 4, "num_epochs": 3, "batch_size": 32}
 
 
@@ -103,7 +107,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
                               env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     url = f"http://127.0.0.1:{port}"
     headers = {"Authorization": f"Bearer {TOKEN}"}
-    admin = httpx.Client(base_url=url, headers=headers, timeout=30)
+    admin = httpx.Client(base_url=url, headers=headers, timeout=30, **PLAIN_HTTP)
     try:
         wait_for_server(admin, "/api/health")
         marker = home / "sandbox" / "trusted-numba" / "laplab-warmup-done"
@@ -122,7 +126,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
 
         def api_client():
             stop.wait(random.uniform(0, think))  # pages opened at different moments, not in lock-step
-            with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
+            with httpx.Client(base_url=url, headers=headers, timeout=30, **PLAIN_HTTP) as client:
                 while not stop.is_set():
                     t0 = time.perf_counter()
                     try:
@@ -138,7 +142,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
                     stop.wait(think)
 
         def stream_client(model: str):
-            with httpx.Client(base_url=url, headers=headers, timeout=httpx.Timeout(30, read=None)) as client:
+            with httpx.Client(base_url=url, headers=headers, timeout=httpx.Timeout(30, read=None), **PLAIN_HTTP) as client:
                 try:
                     with client.stream("GET", f"/api/models/{model}/events") as response:
                         kind = None
@@ -197,19 +201,18 @@ def cpu_per_request(home: Path, seconds: float, clients: int, streams: int) -> N
     url, headers = f"http://127.0.0.1:{port}", {"Authorization": f"Bearer {TOKEN}"}
     stop, latencies = threading.Event(), []
     try:
-        with httpx.Client(base_url=url, headers=headers) as admin:
+        with httpx.Client(base_url=url, headers=headers, **PLAIN_HTTP) as admin:
             wait_for_server(admin, "/api/models")
 
         def stream_client():
-            with httpx.Client(base_url=url, headers=headers, timeout=httpx.Timeout(30, read=None)) as client:
+            with httpx.Client(base_url=url, headers=headers, timeout=httpx.Timeout(30, read=None), **PLAIN_HTTP) as client:
                 with client.stream("GET", "/api/models/idle/events") as response:
                     for _ in response.iter_lines():
                         if stop.is_set():
                             return
 
         def api_client():
-            stop.wait(random.uniform(0, think))  # pages opened at different moments, not in lock-step
-            with httpx.Client(base_url=url, headers=headers, timeout=30) as client:
+            with httpx.Client(base_url=url, headers=headers, timeout=30, **PLAIN_HTTP) as client:
                 while not stop.is_set():
                     t0 = time.perf_counter()
                     if client.get("/api/models").status_code == 200:

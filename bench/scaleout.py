@@ -38,18 +38,21 @@ def make_trainer(name: str, sensor: str, episodes: int, workers: int):
     return create_training(name, replace(base, hyperparameters=hyper, workers=workers))
 
 
-def steps_per_second(trainer, iterations: int) -> tuple[float, float]:
+def steps_per_second(trainer, iterations: int) -> tuple[float, float, dict[str, float]]:
     """(env steps per wall second of the collection step, the share of that wall time the slowest
-    worker spent driving: the rest is Ray's overhead, broadcast, transfer and merge)."""
+    worker spent driving: the rest is Ray's overhead, broadcast, transfer and merge; with workers, the
+    mean ms per iteration of each part of the collector's ``last_timing``)."""
     for _ in range(2):  # warm-up: JIT, first frames, the allocator (a first iteration is not enough for camera)
         trainer._collect(lambda: False, time.perf_counter())
-    steps, driving, started = 0, 0.0, time.perf_counter()
+    steps, driving, started, parts = 0, 0.0, time.perf_counter(), {}
     for _ in range(iterations):
         batch = trainer._collect(lambda: False, time.perf_counter())
         steps += batch.env_steps
         driving += batch.wall_seconds
+        for part, seconds in getattr(trainer.collector, "last_timing", {}).items():
+            parts[part] = parts.get(part, 0.0) + 1000 * seconds / iterations
     wall = time.perf_counter() - started
-    return steps / wall, driving / wall
+    return steps / wall, driving / wall, parts
 
 
 def main() -> None:
@@ -73,14 +76,14 @@ def main() -> None:
     for sensor in args.sensors:
         figures = {}
         trainer = make_trainer(f"inproc-{sensor.lower().replace('_', '-')}", sensor, args.episodes, 1)
-        figures["in-process"], share = steps_per_second(trainer, args.iterations)
+        figures["in-process"], share, _ = steps_per_second(trainer, args.iterations)
         print(f"{sensor:20s} in-process  {figures['in-process']:9.1f} env steps/s (driving {share:.0%})", flush=True)
         for workers in args.workers:
             trainer = make_trainer(f"ray{workers}-{sensor.lower().replace('_', '-')}", sensor, args.episodes, workers)
             with attach_workers(trainer, workers, args.ray_address):
-                figures[workers], share = steps_per_second(trainer, args.iterations)
-            print(f"{sensor:20s} ray x{workers:<5d} {figures[workers]:9.1f} env steps/s (driving {share:.0%})",
-                  flush=True)
+                figures[workers], share, parts = steps_per_second(trainer, args.iterations)
+            print(f"{sensor:20s} ray x{workers:<5d} {figures[workers]:9.1f} env steps/s (driving {share:.0%}; ms per "
+                  f"iteration: {', '.join(f'{part} {ms:.1f}' for part, ms in parts.items())})", flush=True)
         if 1 in figures:
             print(f"{sensor:20s} overhead: ray x1 / in-process = {figures[1] / figures['in-process']:.2f}")
             for workers in args.workers:

@@ -16,7 +16,10 @@ RewardFunctionError paragraph.
 While they collect, the workers tell a :class:`~laplab.cluster.status.ProgressBoard` how many of
 their episodes are done; ``collect(..., on_progress=...)`` hears the iteration's total about once a
 second. The workers' state (node, pid, restarts, episodes) goes to ``on_status`` whenever it changes
-(:mod:`laplab.cluster.status`: the model folder's ``logs/workers.json``).
+(:mod:`laplab.cluster.status`: the model folder's ``logs/workers.json``). With ``on_poses`` (a live
+view) the workers driving the job's first track post their cars' poses to the board and the learner
+hands them on about 15 times a second (cars on a multi-track job's other tracks would be drawn on the
+wrong outline, so they are left out).
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from laplab.cluster.batches import TaggedEpisodeBatch, merge_batches
-from laplab.cluster.status import ProgressBoard, WorkerRecord
+from laplab.cluster.status import POSES_INTERVAL_S, ProgressBoard, WorkerRecord
 from laplab.cluster.worker import (RolloutWorker, RolloutWorkerError, WorkerResult, WorkerSetup, policy_weights,
                                    worker_seed)
 from laplab.train.collect import CollectionAborted
@@ -173,6 +176,10 @@ class RayCollector:
         self.records = [WorkerRecord(s.index, s.track_label) for s in self.setups]
         self._started_ray = False
         self._actor_class = None
+        # the last iteration's wall time by part (s): ``broadcast`` (the weights into the object store),
+        # the slowest worker's ``driving`` and ``worker_other`` (loading the weights, packing the episodes),
+        # ``transport`` (the calls, the wait and the episodes coming back: the rest of the wait) and ``merge``
+        self.last_timing: dict[str, float] = {}
 
     # -- lifetime --------------------------------------------------------------------------------
 
@@ -260,24 +267,49 @@ class RayCollector:
 
     # -- one iteration ---------------------------------------------------------------------------
 
+    def _read_poses(self, version: int) -> tuple[np.ndarray, float] | None:
+        """The cars on the first track now, (N, 3) x m, y m, yaw rad in worker order, and the latest
+        sim time (s) posted; None when no worker has posted (or the board is gone)."""
+        if self.board is None:
+            return None
+        import ray
+        try:
+            posted = ray.get(self.board.read_poses.remote(version), timeout=5.0)
+        except Exception:  # noqa: BLE001 - a lost board costs the live view, not the job
+            self.board = None
+            return None
+        pieces = [posted[i] for i in sorted(posted) if self._on_first_track(i)]
+        if not pieces:
+            return None
+        return np.concatenate([np.asarray(poses) for poses, _ in pieces]), max(t for _, t in pieces)
+
+    def _on_first_track(self, index: int) -> bool:
+        return self.setups[index].track == self.setups[0].track
+
     def collect(self, trainer, should_abort: Callable[[], bool] = lambda: False,
-                on_progress: Callable[[int, int], None] | None = None) -> TaggedEpisodeBatch:
+                on_progress: Callable[[int, int], None] | None = None,
+                on_poses: Callable[[np.ndarray, float], None] | None = None) -> TaggedEpisodeBatch:
         """Every worker's share of the iteration with the trainer's current weights (version
         ``trainer.iteration``), merged; raises CollectionAborted, RolloutWorkerError (the reward
         function raised) or WorkerFailure. ``on_progress(episodes done, env steps)`` hears how far
-        the workers are, about once a second and when a worker delivers."""
+        the workers are, about once a second and when a worker delivers; ``on_poses(poses (N, 3),
+        sim_time s)`` the cars on the first track, about 15 times a second."""
         import ray
+        started = time.perf_counter()
         learner, version = trainer.learner, int(trainer.iteration)
         policy = ray.put(policy_weights(learner))  # once: every worker reads the same object
+        broadcast = time.perf_counter() - started
         episodes_before = int(trainer.episodes)
 
         def submit(index: int):
-            return self.actors[index].collect.remote(policy, version, episodes_before, self.board)
+            post = on_poses is not None and self._on_first_track(index)
+            return self.actors[index].collect.remote(policy, version, episodes_before, self.board, post)
 
         pending = {submit(i): i for i in range(len(self.actors))}
         results: dict[int, WorkerResult] = {}
         deaths = [0] * len(self.actors)
-        last_read = time.monotonic()
+        last_read = last_poses = time.monotonic()
+        poll_s = POSES_INTERVAL_S if on_poses is not None else _POLL_S
 
         def report() -> None:
             counts = self._read_board(version)
@@ -292,7 +324,7 @@ class RayCollector:
             on_progress(done, steps)
 
         while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1, timeout=_POLL_S)
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=poll_s)
             if should_abort():
                 raise CollectionAborted
             for ref in ready:
@@ -321,8 +353,19 @@ class RayCollector:
             if on_progress is not None and pending and (ready or time.monotonic() - last_read >= PROGRESS_READ_S):
                 last_read = time.monotonic()
                 report()
+            if on_poses is not None and pending and time.monotonic() - last_poses >= POSES_INTERVAL_S:
+                last_poses = time.monotonic()
+                cars = self._read_poses(version)
+                if cars is not None:
+                    on_poses(*cars)
+        collected = time.perf_counter()
         batch = merge_batches([results[i].batch for i in range(len(self.actors))])
         require_policy_version(batch, version)
+        slowest = max(results.values(), key=lambda r: r.busy_s)
+        self.last_timing = {"broadcast": broadcast, "driving": float(slowest.batch.wall_seconds),
+                            "worker_other": slowest.busy_s - float(slowest.batch.wall_seconds),
+                            "transport": collected - started - broadcast - slowest.busy_s,
+                            "merge": time.perf_counter() - collected}
         if hasattr(learner, "env_steps"):  # the epsilon schedule advances as the workers acted
             learner.env_steps += sum(r.acted_steps for r in results.values())
         if on_progress is not None:

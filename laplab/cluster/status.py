@@ -15,7 +15,9 @@ delivered, ``cause`` the last death's reason.
 
 :class:`ProgressBoard` is a tiny Ray actor the workers tell, about four times a second while they
 collect, how many of their episodes are done; the learner reads it to report the collection phase's
-progress (episodes done / ``num_episodes_between_training``) as the in-process collector does.
+progress (episodes done / ``num_episodes_between_training``) as the in-process collector does. When
+the learner has a live view to feed (a console job), the workers also post their cars' poses there
+about 15 times a second, and the learner reads them at that rate.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from pathlib import Path
 
 WORKER_STATES = ("starting", "alive", "restarting", "dead", "stopped")
 REPORT_INTERVAL_S = 0.25  # a worker tells the board at most this often
+POSES_INTERVAL_S = 1 / 15  # the cars' poses for a live view: the console's 15 Hz
 
 
 @dataclass
@@ -90,9 +93,18 @@ class ProgressBoard:
 
     def __init__(self):
         self.counts: dict[int, tuple[int, int, int]] = {}  # worker -> (policy version, episodes done, env steps)
+        self.poses: dict[int, tuple[int, object, float]] = {}  # worker -> (policy version, poses (N_w, 3), sim s)
 
     def report(self, index: int, version: int, done: int, steps: int) -> None:
         self.counts[index] = (version, done, steps)
+
+    def post_poses(self, index: int, version: int, poses, sim_time: float) -> None:
+        """Worker ``index``'s cars now: ``poses`` (N_w, 3) x m, y m, yaw rad; ``sim_time`` s into its collection."""
+        self.poses[index] = (version, poses, sim_time)
+
+    def read_poses(self, version: int) -> dict[int, tuple[object, float]]:
+        """Worker index -> (poses (N_w, 3), sim time s) posted in the iteration acted with ``version``."""
+        return {i: (poses, t) for i, (v, poses, t) in self.poses.items() if v == version}
 
     def read(self, version: int) -> dict[int, tuple[int, int]]:
         """Worker index -> (episodes done, env steps) in the iteration acted with ``version``."""

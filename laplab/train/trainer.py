@@ -197,10 +197,14 @@ class Trainer:
 
     def _collect(self, should_abort, started: float) -> EpisodeBatch:
         if self.collector is not None:  # rollout workers (laplab.cluster), counting their episodes as they go
-            total = self.hp.num_episodes_between_training
+            total, iteration = self.hp.num_episodes_between_training, self.iteration + 1
             self._progress(started, "collect", 0, total, force=True)
+            on_poses = None
+            if any(getattr(listener, "on_poses", None) is not None for listener in self._listeners):
+                def on_poses(poses, sim_time) -> None:
+                    self._emit("on_poses", PosesFrame(iteration, poses, sim_time))
             return self.collector.collect(self, should_abort, on_progress=lambda done, steps: self._progress(
-                started, "collect", done, total, steps))
+                started, "collect", done, total, steps), on_poses=on_poses)
         return collect_episodes(self.stepper, self.observations, self._policy(False), self.learner.values,
                                 should_abort=should_abort, on_poses=self._poses_hook(started))
 

@@ -68,11 +68,24 @@ def test_two_track_job_trains_on_policy_and_writes_each_workers_simtrace(local_r
         versions_seen.append((trainer.iteration, set(per_step.tolist())))
         return learn(batch, *args, **kwargs)
     trainer.learner.learn = checked_learn
-    reports = []
+    reports, frames = [], []
+
+    class LiveView:  # the console's car view: the workers' cars while they collect
+        def on_poses(self, frame):
+            frames.append(frame)
+    trainer.subscribe(LiveView())
     with attach_workers(trainer, 2):
         result = trainer.run(callbacks=(reports.append,))
     assert result.error is None and result.iterations == 2 and result.episodes == 8
     assert versions_seen == [(0, {0}), (1, {1})]
+    # both workers drive classic_2018 (one reversed): their 2 + 2 cars, in world coordinates of that track
+    assert frames and {f.iteration for f in frames} <= {1, 2} and {len(f.poses) for f in frames} <= {2, 4}
+    assert any(len(f.poses) == 4 for f in frames)
+    track = trainer.track
+    xy = np.concatenate([f.poses[:, :2] for f in frames])
+    assert np.isfinite(xy).all()
+    border = np.concatenate([track.inner, track.outer])
+    assert (xy.min(0) > border.min(0) - 1.0).all() and (xy.max(0) < border.max(0) + 1.0).all()  # off-track cars stop
     assert set(reports[-1].eval_progress_by_track) == {"classic_2018", "classic_2018@reversed"}
     folder = model_folder("two-tracks")
     assert not folder.training_simtrace_dir.exists()  # deepracer-utils' multi-worker layout

@@ -196,6 +196,8 @@ def test_a_console_job_trains_with_two_workers_on_the_cluster(ray_head, tmp_path
         events = [json.loads(line) for line in (tmp_path / "home" / "jobs" / str(job["id"]) / "events.jsonl").open()]
         phases = [(e["phase"], e["total"]) for e in events if e["type"] == "phase" and e["iteration"] == 1]
         assert ("collect", 4) in phases and phases.index(("collect", 4)) < [p for p, _ in phases].index("learn")
+        live = json.loads((tmp_path / "home" / "jobs" / str(job["id"]) / "poses.json").read_text())
+        assert live["seq"] >= 1 and 1 <= len(live["cars"]) <= 4  # the car view: cars of the workers, as they drove
         other = console.add_user("other")
         assert other.get("/api/models/on-cluster").status_code == 404  # the workers, like the model, are the owner's
         page = console.admin.get("/models/on-cluster")
