@@ -72,6 +72,13 @@ def steps_per_second(model_dir: Path) -> float | None:
     return rows[-1]["env_steps"] / rows[-1]["elapsed_s"] if rows else None
 
 
+def first_iteration_s(model_dir: Path) -> float | None:
+    """Wall seconds of a training's first iteration (its start-up: JIT caches, first frames), from its log."""
+    path = model_dir / "metrics" / "laplab-iterations.json"
+    rows = json.loads(path.read_text())["iterations"] if path.exists() else []
+    return rows[0]["elapsed_s"] if rows else None
+
+
 def percentile(values: list[float], q: float) -> float:
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, int(round(q / 100 * (len(ordered) - 1))))] if ordered else float("nan")
@@ -97,7 +104,8 @@ def baseline(home: Path, seconds: float) -> list[float | None]:
                                   env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for i in range(2)]
     for p in processes:
         p.wait(seconds + 600)
-    return [steps_per_second(home / "models" / f"base-{i}") for i in range(2)]
+    return [steps_per_second(home / "models" / f"base-{i}") for i in range(2)], \
+        [first_iteration_s(home / "models" / f"base-{i}") for i in range(2)]
 
 
 def with_server(home: Path, seconds: float, clients: int, streams: int, think: float) -> dict:
@@ -175,7 +183,8 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
             t.join(5)
         cpu = None if cpu_start is None or cpu_end is None else cpu_end - cpu_start
         return {"latencies": latencies, "deliveries": deliveries, "errors": errors[0], "statuses": statuses, "cpu": cpu,
-                "clients_cpu": clients_cpu, "wall": wall, "slow": slow, "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)]}
+                "clients_cpu": clients_cpu, "wall": wall, "slow": slow, "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)],
+                "first": [first_iteration_s(home / "models" / f"served-{i}") for i in range(2)]}
     finally:
         admin.close()
         server.terminate()
@@ -260,7 +269,7 @@ def main() -> None:
         return
     with tempfile.TemporaryDirectory(prefix="laplab-bench-") as folder:
         root = Path(folder)
-        base = [None, None] if args.no_baseline else baseline(root / "baseline", args.seconds)
+        base, base_first = ([None, None], [None, None]) if args.no_baseline else baseline(root / "baseline", args.seconds)
         quiet = None if args.no_quiet_phase else with_server(root / "quiet", args.seconds, 0, 0, args.think)
         served = with_server(root / "served", args.seconds, args.clients, args.streams, args.think)
     lat, dl = served["latencies"], served["deliveries"]
@@ -285,6 +294,8 @@ def main() -> None:
         print(f"  as console jobs, no clients: {fmt(quiet['steps'])} (mean {mean(quiet['steps']):.1f}), ratio to "
               f"without the server {mean(quiet['steps']) / mean(base):.2f}; the load's clients then take the "
               f"ratio to {mean(served['steps']) / mean(quiet['steps']):.2f} of that")
+    print(f"  first iteration (s): without the server {fmt(base_first)}; with the load {fmt(served['first'])}"
+          + ("" if quiet is None else f"; no clients {fmt(quiet['first'])}"))
     if served["cpu"] is not None:
         print(f"  the server's share of the machine under the load: {served['cpu'] / (served['wall'] * os.cpu_count()):.1%}"
               f" of its CPU ({served['cpu']:.1f} s in {served['wall']:.0f} s on {os.cpu_count()} cores); the clients' "

@@ -16,7 +16,7 @@ from laplab.console import exports
 from laplab.console.api import (Evaluate, ValidateReward, _field_of, _input_errors, _service, _validate_reward,
                                 bad_request, check_track_name, own_model)
 from laplab.console.auth import current_user
-from laplab.console.service import sse_message
+from laplab.console.events import sse_message
 from laplab.jobs.db import User
 from laplab.jobs.runner import job_folder, models_dir
 

@@ -1,4 +1,5 @@
-"""The console's service: models (folders + owners), the job scheduler and the live event hub.
+"""The console's service: models (folders + owners) and the job scheduler, which feeds the live
+event hub (:mod:`laplab.console.events`).
 
 The scheduler runs in the server's event loop every ``TICK_S``: it collects ended jobs, tails the
 running jobs' ``events.jsonl`` and ``poses.json`` into the :class:`EventHub`, and starts queued jobs
@@ -8,18 +9,16 @@ job of its model runs.
 
 from __future__ import annotations
 
-import asyncio
 import json
 import os
 import shutil
 import threading
 import time
-from collections import deque
-from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from laplab.console.events import EventHub
 from laplab.jobs.db import ACTIVE_STATUSES, Job, JobStore, User
 from laplab.jobs.runner import JobRunner, job_folder, models_dir
 from laplab.store.layout import ModelFolder, list_models
@@ -30,59 +29,6 @@ QUEUE_CHECK_S = 1.0  # the scheduler reads the queue at least this often while a
 TRAIN_KINDS = ("train", "clone", "resume")
 MODEL_STATUS = {"queued": "queued", "running": "training", "stopping": "stopping", "done": "ready",
                 "failed": "failed", "interrupted": "interrupted"}
-
-
-@dataclass
-class ModelStream:
-    """Live state of one model for its event streams."""
-
-    events: deque = field(default_factory=lambda: deque(maxlen=2000))  # (seq, kind, data, SSE text)
-    seq: int = 0
-    poses: dict | None = None
-    poses_text: str = ""  # the poses as an SSE message, written once for every stream
-    poses_seq: int = 0
-    waiters: set = field(default_factory=set)  # asyncio.Event of each open stream, set on news
-
-
-class EventHub:
-    """Per-model events (iterations, status changes) and the latest poses, numbered for streams.
-    An open stream waits on its own ``asyncio.Event``, set when its model has news (no polling)."""
-
-    def __init__(self):
-        self.streams: dict[str, ModelStream] = {}
-        self.loop: asyncio.AbstractEventLoop | None = None  # the server's loop (set at start-up)
-        self._loop_thread: int | None = None
-
-    def attach(self, loop: asyncio.AbstractEventLoop) -> None:
-        self.loop, self._loop_thread = loop, threading.get_ident()
-
-    def stream(self, model: str) -> ModelStream:
-        return self.streams.setdefault(model, ModelStream())
-
-    def publish(self, model: str, kind: str, data: dict) -> None:
-        stream = self.stream(model)
-        stream.seq += 1
-        stream.events.append((stream.seq, kind, data, sse_message(kind, data, stream.seq)))
-        self._wake(stream)
-
-    def set_poses(self, model: str, poses: dict) -> None:
-        stream = self.stream(model)
-        stream.poses, stream.poses_text = poses, sse_message("poses", poses)
-        stream.poses_seq += 1
-        self._wake(stream)
-
-    def _wake(self, stream: ModelStream) -> None:
-        for waiter in list(stream.waiters):
-            if self.loop is None or threading.get_ident() == self._loop_thread:
-                waiter.set()
-            else:  # published from a worker thread (a route running in the thread pool)
-                self.loop.call_soon_threadsafe(waiter.set)
-
-
-def sse_message(kind: str, data: dict, event_id: int | None = None) -> str:
-    """One server-sent event: ``event: KIND`` and ``data: JSON`` (with ``id:`` when numbered)."""
-    head = f"id: {event_id}\n" if event_id is not None else ""
-    return f"{head}event: {kind}\ndata: {json.dumps(data)}\n\n"
 
 
 def _iso(timestamp: float | None) -> str | None:
