@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import math
+import os
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict
 from typing import Any, Callable, Iterator, Mapping, NamedTuple
@@ -186,7 +187,7 @@ class SACLearner:
         self.buffer = ReplayBuffer(buffer_capacity, observation_space, dim)
         self.rng = np.random.default_rng(seed)
         self.gradient_steps = 0
-        self._side_thread: ThreadPoolExecutor | None = None  # runs the critic's half of a step
+        self._side_thread: tuple[int, ThreadPoolExecutor] | None = None  # (process id, pool of one thread)
 
     @torch.no_grad()
     def act(self, observations: Any, deterministic: bool = False) -> PolicyStep:
@@ -273,8 +274,9 @@ class SACLearner:
             yield _run_now
             return
         side_threads = threads // 2
-        if self._side_thread is None:
-            self._side_thread = ThreadPoolExecutor(1, thread_name_prefix="laplab-sac-critic")
+        if self._side_thread is None or self._side_thread[0] != os.getpid():  # a forked child has no thread
+            self._side_thread = (os.getpid(), ThreadPoolExecutor(1, thread_name_prefix="laplab-sac-critic"))
+        pool = self._side_thread[1]
 
         def on_side(fn: Callable[[], Any]) -> Any:
             if torch.get_num_threads() != side_threads:  # a thread's own count (OpenMP), set once
@@ -283,7 +285,7 @@ class SACLearner:
 
         torch.set_num_threads(threads - side_threads)
         try:
-            yield lambda fn: self._side_thread.submit(on_side, fn)
+            yield lambda fn: pool.submit(on_side, fn)
         finally:
             torch.set_num_threads(threads)
 
