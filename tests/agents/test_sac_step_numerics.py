@@ -80,3 +80,29 @@ def test_camera_gradient_steps_match_the_sequential_reference(threads):
         assert torch.get_num_threads() == threads  # the step leaves torch's thread count as it found it
     finally:
         torch.set_num_threads(previous_threads)
+
+
+def test_a_failure_on_the_critic_thread_reaches_the_caller_and_restores_the_threads():
+    previous_threads = torch.get_num_threads()
+    try:
+        learner = SACLearner(CAMERA, CONTINUOUS, Hyperparameters(batch_size=32), seed=0, num_threads=2,
+                             buffer_capacity=100)
+        frames = np.zeros((40, *CAMERA.shape), np.uint8)
+        learner.observe(frames[:20], np.zeros((20, 2), np.float32), np.zeros(20, np.float32), frames[20:],
+                        np.zeros(20, np.float32))
+        learner.observe(frames[:20], np.zeros((20, 2), np.float32), np.zeros(20, np.float32), frames[20:],
+                        np.zeros(20, np.float32))
+        critic_before = [p.detach().clone() for p in learner.critic.parameters()]
+
+        def broken(*_):
+            raise RuntimeError("broken critic trunk")
+
+        hook = learner.critic.trunk.register_forward_hook(broken)
+        with pytest.raises(RuntimeError, match="broken critic trunk"):
+            learner.update(2)
+        assert torch.get_num_threads() == 2 and learner.gradient_steps == 0
+        assert all(torch.equal(a, b) for a, b in zip(critic_before, learner.critic.parameters()))
+        hook.remove()
+        assert learner.update(1)["num_gradient_steps"] == 1  # the thread still serves the next update
+    finally:
+        torch.set_num_threads(previous_threads)
