@@ -287,6 +287,7 @@ class SACLearner:
         try:
             yield lambda fn: pool.submit(on_side, fn)
         finally:
+            pool.submit(lambda: None).result()  # after a failure, nothing of this update still runs
             torch.set_num_threads(threads)
 
     def _gradient_step(self, batch: ReplayBatch, critic_side: Callable[[Callable[[], Any]], Future]) -> torch.Tensor:
@@ -338,13 +339,8 @@ class SACLearner:
     def _critic_update(self) -> None:
         self.critic_optimizer.step()
         with torch.no_grad():
-            torch._foreach_lerp_(self._target_parameters(), self._critic_parameters(), TARGET_SMOOTHING)
-
-    def _target_parameters(self) -> list[torch.Tensor]:
-        return list(self.target_critic.parameters())
-
-    def _critic_parameters(self) -> list[torch.Tensor]:
-        return list(self.critic.parameters())
+            torch._foreach_lerp_(list(self.target_critic.parameters()), list(self.critic.parameters()),
+                                 TARGET_SMOOTHING)
 
     def _config(self) -> dict[str, Any]:
         return {"algorithm": "sac", "gradient_steps": self.gradient_steps,
