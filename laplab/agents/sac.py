@@ -155,7 +155,8 @@ class SACLearner:
     """DeepRacer's SAC: ``act`` -> actions in [-1, 1]^A, ``observe`` transitions, ``update``.
 
     ``seed`` seeds torch's global RNG and this learner's numpy RNG (replay sampling).
-    ``buffer_capacity`` counts replay slots (one frame each).
+    ``buffer_capacity`` counts replay slots (one frame each). ``num_threads``: torch threads (see
+    :func:`limit_torch_threads`); with two or more, a gradient step's critic half takes half of them.
     """
 
     algorithm = "sac"
