@@ -5,14 +5,22 @@ fixed entropy temperature ``sac_alpha`` (DeepRacer does not tune it). Gamma is
 ``discount_factor``, both optimizers use ``lr``; an iteration makes
 ``num_epochs * ceil(new_steps / batch_size)`` gradient steps on uniform replay samples,
 mirroring PPO's passes over the new experience.
+
+A gradient step runs the critic's half (its trunk passes, backward, optimizer step and target
+update) on a second thread while the calling thread runs the actor's half, each with half of
+torch's intra-op threads: two independent streams of work keep two cores busy better than two
+threads meeting at the end of every operation, most of all on a shared machine.
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
+import os
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict
-from typing import Any, Callable, Mapping, NamedTuple
+from typing import Any, Callable, Iterator, Mapping, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -147,7 +155,8 @@ class SACLearner:
     """DeepRacer's SAC: ``act`` -> actions in [-1, 1]^A, ``observe`` transitions, ``update``.
 
     ``seed`` seeds torch's global RNG and this learner's numpy RNG (replay sampling).
-    ``buffer_capacity`` counts replay slots (one frame each).
+    ``buffer_capacity`` counts replay slots (one frame each). ``num_threads``: torch threads (see
+    :func:`limit_torch_threads`); with two or more, a gradient step's critic half takes half of them.
     """
 
     algorithm = "sac"
@@ -179,6 +188,7 @@ class SACLearner:
         self.buffer = ReplayBuffer(buffer_capacity, observation_space, dim)
         self.rng = np.random.default_rng(seed)
         self.gradient_steps = 0
+        self._side_thread: tuple[int, ThreadPoolExecutor] | None = None  # (process id, pool of one thread)
 
     @torch.no_grad()
     def act(self, observations: Any, deterministic: bool = False) -> PolicyStep:
@@ -241,39 +251,73 @@ class SACLearner:
             return nan
         totals = torch.zeros(4, dtype=torch.float64)
         done = 0
-        for _ in range(num_gradient_steps):
-            if should_stop is not None and should_stop():
-                break
-            totals += self._gradient_step(self.buffer.sample(hp.batch_size, self.rng))
-            done += 1
-            if on_progress is not None:
-                on_progress(done, num_gradient_steps)
+        with self._critic_stream() as critic_side:
+            for _ in range(num_gradient_steps):
+                if should_stop is not None and should_stop():
+                    break
+                totals += self._gradient_step(self.buffer.sample(hp.batch_size, self.rng), critic_side)
+                done += 1
+                if on_progress is not None:
+                    on_progress(done, num_gradient_steps)
         if done == 0:
             return nan
         means = (totals / done).tolist()
         return {"critic_loss": means[0], "actor_loss": means[1], "q_mean": means[2], "entropy": means[3],
                 "num_gradient_steps": done}
 
-    def _gradient_step(self, batch: ReplayBatch) -> torch.Tensor:
+    @contextlib.contextmanager
+    def _critic_stream(self) -> Iterator[Callable[[Callable[[], Any]], Future]]:
+        """A ``run(fn) -> Future`` for the critic's half of the steps made inside: with two or more
+        torch threads, ``fn`` runs on this learner's second thread with half of them (the caller
+        keeps the rest, and gets its thread count back on leaving); with one, it runs at once."""
+        threads = torch.get_num_threads()
+        if threads < 2:
+            yield _run_now
+            return
+        side_threads = threads // 2
+        if self._side_thread is None or self._side_thread[0] != os.getpid():  # a forked child has no thread
+            self._side_thread = (os.getpid(), ThreadPoolExecutor(1, thread_name_prefix="laplab-sac-critic"))
+        pool = self._side_thread[1]
+
+        def on_side(fn: Callable[[], Any]) -> Any:
+            if torch.get_num_threads() != side_threads:  # a thread's own count (OpenMP), set once
+                torch.set_num_threads(side_threads)
+            return fn()
+
+        torch.set_num_threads(threads - side_threads)
+        try:
+            yield lambda fn: pool.submit(on_side, fn)
+        finally:
+            pool.submit(lambda: None).result()  # after a failure, nothing of this update still runs
+            torch.set_num_threads(threads)
+
+    def _gradient_step(self, batch: ReplayBatch, critic_side: Callable[[Callable[[], Any]], Future]) -> torch.Tensor:
         """One step of both networks on one minibatch: the critic towards the soft Bellman target of
-        the target critic, the actor against the critic as it was before this step (rl_coach's order),
-        in one backward pass; then the target critic moves ``TARGET_SMOOTHING`` of the way (in place).
-        The critic's trunk runs once for both Q heads and both losses."""
+        the target critic, the actor against the critic as it was before this step (rl_coach's order);
+        then the target critic moves ``TARGET_SMOOTHING`` of the way (in place). The critic's trunk
+        runs once for both Q heads and both losses. ``critic_side`` runs the critic's trunk passes,
+        backward pass and updates alongside the actor's (the two graphs share no parameter)."""
         hp, device = self.hyperparameters, self.device
         obs = observation_to_tensor(batch.observations, device)
         next_obs = observation_to_tensor(batch.next_observations, device)
         actions, rewards, terminated = (torch.as_tensor(x, device=device)
                                         for x in (batch.actions, batch.rewards, batch.terminated))
+
+        def critic_trunks() -> tuple[torch.Tensor, torch.Tensor]:
+            with torch.no_grad():  # grad mode is per thread
+                next_features = self.target_critic.trunk(next_obs)
+            return next_features, self.critic.trunk(obs)
+
+        trunks = critic_side(critic_trunks)
         with torch.no_grad():
             next_actions, next_log_probs = self.actor(next_obs)
-            next_q1, next_q2 = self.target_critic(next_obs, next_actions)
-            target = sac_critic_target(rewards, terminated, next_q1, next_q2, next_log_probs,
-                                       hp.discount_factor, hp.sac_alpha)
-        features = self.critic.trunk(obs)
+        new_actions, log_probs = self.actor(obs)
+        next_features, features = trunks.result()
+        with torch.no_grad():
+            target = sac_critic_target(rewards, terminated, *self.target_critic.heads(next_features, next_actions),
+                                       next_log_probs, hp.discount_factor, hp.sac_alpha)
         q1, q2 = self.critic.heads(features, actions)
         critic_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)
-
-        new_actions, log_probs = self.actor(obs)
         for parameter in self._head_parameters:  # the actor's loss must not train the critic
             parameter.requires_grad_(False)
         actor_loss = sac_actor_loss(*self.critic.heads(features.detach(), new_actions), log_probs, hp.sac_alpha)
@@ -282,20 +326,22 @@ class SACLearner:
 
         self.critic_optimizer.zero_grad(set_to_none=True)
         self.actor_optimizer.zero_grad(set_to_none=True)
-        (critic_loss + actor_loss).backward()  # disjoint graphs: each network gets its own loss's gradient
-        self.critic_optimizer.step()
+        critic_backward = critic_side(critic_loss.backward)
+        actor_loss.backward()
+        # after the actor's backward, which needs the critic's heads as they were; in order after
+        # the critic's backward, and not at all if that failed
+        critic_update = critic_side(lambda: (critic_backward.result(), self._critic_update()))
         self.actor_optimizer.step()
-        with torch.no_grad():
-            torch._foreach_lerp_(self._target_parameters(), self._critic_parameters(), TARGET_SMOOTHING)
+        critic_update.result()
         self.gradient_steps += 1
         return torch.stack([critic_loss.detach(), actor_loss.detach(), q1.detach().mean(),
                             -log_probs.detach().mean()]).double()
 
-    def _target_parameters(self) -> list[torch.Tensor]:
-        return list(self.target_critic.parameters())
-
-    def _critic_parameters(self) -> list[torch.Tensor]:
-        return list(self.critic.parameters())
+    def _critic_update(self) -> None:
+        self.critic_optimizer.step()
+        with torch.no_grad():
+            torch._foreach_lerp_(list(self.target_critic.parameters()), list(self.critic.parameters()),
+                                 TARGET_SMOOTHING)
 
     def _config(self) -> dict[str, Any]:
         return {"algorithm": "sac", "gradient_steps": self.gradient_steps,
@@ -339,6 +385,16 @@ class SACLearner:
             self.actor_optimizer.load_state_dict(state["actor_optimizer"])
             self.critic_optimizer.load_state_dict(state["critic_optimizer"])
         self.gradient_steps = int(state.get("gradient_steps", 0))
+
+
+def _run_now(fn: Callable[[], Any]) -> Future:
+    """``fn()`` run at once, as a finished ``Future``."""
+    future: Future = Future()
+    try:
+        future.set_result(fn())
+    except BaseException as error:  # noqa: BLE001 - handed to whoever reads the result
+        future.set_exception(error)
+    return future
 
 
 def _separate_layout(state: Mapping[str, Any]) -> bool:
