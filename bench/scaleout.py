@@ -12,9 +12,14 @@ weights (no learning between iterations, so every variant drives the same policy
 Two warm-up iterations per variant are not timed (process start, JIT compilation). Prints env steps/s,
 the Ray x1 / in-process ratio and the parallel efficiency (steps/s of N workers / (N x steps/s of 1)).
 
+Ray's cost is fixed per iteration (about 13 ms on the 2-core host), so the ratio depends on how long
+the iteration's episodes are: an untrained policy crashes within ~15 steps, the worst case. With
+``--trained-seconds S`` every variant drives the weights of a policy first trained in-process for S
+seconds instead (episodes as a training has them after its first minutes).
+
 Usage:
   python bench/scaleout.py [--sensors STATE FRONT_FACING_CAMERA] [--workers 1 2] [--iterations 3]
-                           [--episodes 20] [--ray-address ADDR]
+                           [--episodes 20] [--trained-seconds 0] [--ray-address ADDR]
 """
 
 from __future__ import annotations
@@ -27,31 +32,53 @@ import time
 from dataclasses import replace
 
 
-def make_trainer(name: str, sensor: str, episodes: int, workers: int):
+def make_trainer(name: str, sensor: str, episodes: int, workers: int, weights: dict | None = None,
+                 max_time_s: float = 20 * 60.0):
+    """A training of ``sensor`` with ``episodes`` per iteration; ``weights``: its policy network's to start with."""
     from laplab.env.metadata import ModelMetadata
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import create_training
 
     metadata = replace(ModelMetadata(), sensors=(sensor,)).to_dict()
-    base = replace(TrainConfig(), model_metadata=metadata)
+    base = replace(TrainConfig(), model_metadata=metadata, max_time_s=max_time_s)
     hyper = {**base.hyper().to_dict(), "num_episodes_between_training": episodes}
-    return create_training(name, replace(base, hyperparameters=hyper, workers=workers))
+    trainer = create_training(name, replace(base, hyperparameters=hyper, workers=workers))
+    if weights is not None:
+        trainer.learner.policy_network.load_state_dict(weights)
+    return trainer
+
+
+def trained_weights(sensor: str, episodes: int, seconds: float) -> dict:
+    """The policy network's weights after ``seconds`` of in-process training."""
+    trainer = make_trainer(f"pretrain-{sensor.lower().replace('_', '-')}", sensor, episodes, 1, max_time_s=seconds)
+    result = trainer.run()
+    print(f"{sensor:20s} pre-trained {result.iterations} iterations in {seconds:g} s", flush=True)
+    return {k: v.clone() for k, v in trainer.learner.policy_network.state_dict().items()}
 
 
 def steps_per_second(trainer, iterations: int) -> tuple[float, float, dict[str, float]]:
     """(env steps per wall second of the collection step, the share of that wall time the slowest
-    worker spent driving: the rest is Ray's overhead, broadcast, transfer and merge; with workers, the
-    mean ms per iteration of each part of the collector's ``last_timing``)."""
-    for _ in range(2):  # warm-up: JIT, first frames, the allocator (a first iteration is not enough for camera)
-        trainer._collect(lambda: False, time.perf_counter())
-    steps, driving, started, parts = 0, 0.0, time.perf_counter(), {}
-    for _ in range(iterations):
+    worker spent driving: the rest is Ray's overhead, broadcast, transfer and merge; the mean ms per
+    iteration of each part of the collector's ``last_timing`` with workers, and ``per_step``: ms of
+    wall time per batched simulator step, which the episodes' random lengths disturb less than env
+    steps/s)."""
+    def collect():  # as the trainer's loop does: the episode count moves the workers' round-robin starts on
         batch = trainer._collect(lambda: False, time.perf_counter())
+        trainer.episodes += len(batch.status)
+        return batch
+
+    for _ in range(2):  # warm-up: JIT, first frames, the allocator (a first iteration is not enough for camera)
+        collect()
+    steps, batched, driving, started, parts = 0, 0, 0.0, time.perf_counter(), {}
+    for _ in range(iterations):
+        batch = collect()
         steps += batch.env_steps
+        batched += batch.valid.shape[0]
         driving += batch.wall_seconds
         for part, seconds in getattr(trainer.collector, "last_timing", {}).items():
             parts[part] = parts.get(part, 0.0) + 1000 * seconds / iterations
     wall = time.perf_counter() - started
+    parts["per_step"] = 1000 * wall / batched
     return steps / wall, driving / wall, parts
 
 
@@ -61,6 +88,8 @@ def main() -> None:
     parser.add_argument("--workers", nargs="+", type=int, default=[1, 2])
     parser.add_argument("--iterations", type=int, default=3)
     parser.add_argument("--episodes", type=int, default=20, help="episodes (cars) per iteration, all variants")
+    parser.add_argument("--trained-seconds", type=float, default=0.0,
+                        help="drive a policy first trained in-process this long (0: untrained weights)")
     parser.add_argument("--ray-address", default=None)
     args = parser.parse_args()
     os.environ.setdefault("LAPLAB_HOME", tempfile.mkdtemp(prefix="laplab-scaleout-"))
@@ -75,17 +104,24 @@ def main() -> None:
           f"{args.episodes} cars per iteration, {args.iterations} timed iterations", flush=True)
     for sensor in args.sensors:
         figures = {}
-        trainer = make_trainer(f"inproc-{sensor.lower().replace('_', '-')}", sensor, args.episodes, 1)
-        figures["in-process"], share, _ = steps_per_second(trainer, args.iterations)
-        print(f"{sensor:20s} in-process  {figures['in-process']:9.1f} env steps/s (driving {share:.0%})", flush=True)
+        weights = trained_weights(sensor, args.episodes, args.trained_seconds) if args.trained_seconds > 0 else None
+        trainer = make_trainer(f"inproc-{sensor.lower().replace('_', '-')}", sensor, args.episodes, 1, weights)
+        figures["in-process"], share, parts = steps_per_second(trainer, args.iterations)
+        per_step = {"in-process": parts["per_step"]}
+        print(f"{sensor:20s} in-process  {figures['in-process']:9.1f} env steps/s (driving {share:.0%}; "
+              f"{per_step['in-process']:.2f} ms per batched step)", flush=True)
         for workers in args.workers:
-            trainer = make_trainer(f"ray{workers}-{sensor.lower().replace('_', '-')}", sensor, args.episodes, workers)
+            trainer = make_trainer(f"ray{workers}-{sensor.lower().replace('_', '-')}", sensor, args.episodes, workers,
+                                   weights)
             with attach_workers(trainer, workers, args.ray_address):
                 figures[workers], share, parts = steps_per_second(trainer, args.iterations)
-            print(f"{sensor:20s} ray x{workers:<5d} {figures[workers]:9.1f} env steps/s (driving {share:.0%}; ms per "
-                  f"iteration: {', '.join(f'{part} {ms:.1f}' for part, ms in parts.items())})", flush=True)
+            per_step[workers] = parts.pop("per_step")
+            print(f"{sensor:20s} ray x{workers:<5d} {figures[workers]:9.1f} env steps/s (driving {share:.0%}; "
+                  f"{per_step[workers]:.2f} ms per batched step; ms per iteration: "
+                  f"{', '.join(f'{part} {ms:.1f}' for part, ms in parts.items())})", flush=True)
         if 1 in figures:
-            print(f"{sensor:20s} overhead: ray x1 / in-process = {figures[1] / figures['in-process']:.2f}")
+            print(f"{sensor:20s} overhead: ray x1 / in-process = {figures[1] / figures['in-process']:.2f} "
+                  f"(per batched step: {per_step['in-process'] / per_step[1]:.2f})")
             for workers in args.workers:
                 if workers > 1:
                     print(f"{sensor:20s} scaling 1 -> {workers}: {figures[workers] / figures[1]:.2f}x, "
