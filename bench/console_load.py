@@ -93,8 +93,9 @@ def cpu_seconds(pid: int) -> float | None:
         return None
 
 
-def baseline(home: Path, seconds: float) -> list[float | None]:
-    """Two `laplab train` processes at once, no server, with the thread setting the console gives its jobs."""
+def baseline(home: Path, seconds: float) -> tuple[list[float | None], list[float | None]]:
+    """Two `laplab train` processes at once, no server, with the thread setting the console gives its jobs:
+    their env steps/s and their first iterations' wall seconds."""
     env = {**os.environ, "LAPLAB_HOME": str(home), "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1")}
     home.mkdir(parents=True, exist_ok=True)
     hp = home / "hp.json"
