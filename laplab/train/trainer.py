@@ -158,17 +158,27 @@ class Trainer:
             if handler is not None:
                 handler(payload)
 
+    def _poses_emitter(self):
+        """``emit(poses, sim_time)``: the running collection's cars as a :class:`PosesFrame` to the
+        listeners; None when none listens (no frame is then made)."""
+        if not any(getattr(listener, "on_poses", None) is not None for listener in self._listeners):
+            return None
+        iteration = self.iteration + 1
+
+        def emit(poses, sim_time) -> None:
+            self._emit("on_poses", PosesFrame(iteration, poses, sim_time))
+        return emit
+
     def _poses_hook(self, started: float):
         """The collection's per-step hook: poses for those who listen (none copied otherwise) and,
         about once a second, the episodes done so far (:class:`PhaseProgress`)."""
-        iteration = self.iteration + 1
-        wants_poses = any(getattr(listener, "on_poses", None) is not None for listener in self._listeners)
+        emit_poses = self._poses_emitter()
         total = self.sim.num_cars
         self._progress(started, "collect", 0, total, 0, force=True)
 
         def hook(poses, sim_time) -> None:
-            if wants_poses:
-                self._emit("on_poses", PosesFrame(iteration, poses, sim_time))
+            if emit_poses is not None:
+                emit_poses(poses, sim_time)
             if self._progress_due():  # counting the cars every step would be wasted work
                 done, steps = episodes_done_and_steps(self.sim.state)
                 self._progress(started, "collect", done, total, steps)
@@ -197,14 +207,10 @@ class Trainer:
 
     def _collect(self, should_abort, started: float) -> EpisodeBatch:
         if self.collector is not None:  # rollout workers (laplab.cluster), counting their episodes as they go
-            total, iteration = self.hp.num_episodes_between_training, self.iteration + 1
+            total = self.hp.num_episodes_between_training
             self._progress(started, "collect", 0, total, force=True)
-            on_poses = None
-            if any(getattr(listener, "on_poses", None) is not None for listener in self._listeners):
-                def on_poses(poses, sim_time) -> None:
-                    self._emit("on_poses", PosesFrame(iteration, poses, sim_time))
             return self.collector.collect(self, should_abort, on_progress=lambda done, steps: self._progress(
-                started, "collect", done, total, steps), on_poses=on_poses)
+                started, "collect", done, total, steps), on_poses=self._poses_emitter())
         return collect_episodes(self.stepper, self.observations, self._policy(False), self.learner.values,
                                 should_abort=should_abort, on_poses=self._poses_hook(started))
 
