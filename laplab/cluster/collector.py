@@ -254,30 +254,28 @@ class RayCollector:
         self.actors[index] = self._actor_class.remote(setup)
         self._status()
 
-    def _read_board(self, version: int) -> dict[int, tuple[int, int]]:
-        """The workers' (episodes done, env steps) of this iteration so far; {} when the board is gone."""
+    def _ask_board(self, method: str, version: int) -> dict:
+        """The board's ``method(version)``: {} when the board is gone (a lost board costs the progress
+        line and the live view, not the job; it is not asked again)."""
         if self.board is None:
             return {}
         import ray
         try:
-            return ray.get(self.board.read.remote(version), timeout=5.0)
-        except Exception:  # noqa: BLE001 - a lost board costs the progress line, not the job
+            return ray.get(getattr(self.board, method).remote(version), timeout=5.0)
+        except Exception:  # noqa: BLE001 - see the docstring
             self.board = None
             return {}
+
+    def _read_board(self, version: int) -> dict[int, tuple[int, int]]:
+        """The workers' (episodes done, env steps) of this iteration so far."""
+        return self._ask_board("read", version)
 
     # -- one iteration ---------------------------------------------------------------------------
 
     def _read_poses(self, version: int) -> tuple[np.ndarray, float] | None:
         """The cars on the first track now, (N, 3) x m, y m, yaw rad in worker order, and the latest
         sim time (s) posted; None when no worker has posted (or the board is gone)."""
-        if self.board is None:
-            return None
-        import ray
-        try:
-            posted = ray.get(self.board.read_poses.remote(version), timeout=5.0)
-        except Exception:  # noqa: BLE001 - a lost board costs the live view, not the job
-            self.board = None
-            return None
+        posted = self._ask_board("read_poses", version)
         pieces = [posted[i] for i in sorted(posted) if self._on_first_track(i)]
         if not pieces:
             return None
