@@ -42,6 +42,8 @@ from laplab.train.errors import JobError
 MAX_RESTARTS_PER_ITERATION = 3
 _POLL_S = 0.2
 PROGRESS_READ_S = 1.0  # the learner reads the workers' progress board at most this often
+BOARD_START_S = 60.0  # the progress board's process starts within this, or the job runs without it
+BOARD_ANSWER_S = 5.0
 CLIENT_ATTEMPTS = 3  # Ray Client connections tried when the head fails to start the client's server
 
 
@@ -197,8 +199,9 @@ class RayCollector:
         for record, where in zip(self.records, places):
             record.place(where)
             record.state = "alive"
-        try:
+        try:  # up before the first iteration asks it (a loaded machine takes seconds to start its process)
             self.board = ray.remote(num_cpus=0, max_restarts=0)(ProgressBoard).remote()
+            ray.get(self.board.read.remote(-1), timeout=BOARD_START_S)
         except Exception:  # noqa: BLE001 - progress is a nicety: collection works without it
             self.board = None
         self._status()
@@ -255,13 +258,15 @@ class RayCollector:
         self._status()
 
     def _ask_board(self, method: str, version: int) -> dict:
-        """The board's ``method(version)``: {} when the board is gone (a lost board costs the progress
-        line and the live view, not the job; it is not asked again)."""
+        """The board's ``method(version)``: {} when it is slow to answer, and when it is gone (a lost
+        board costs the progress line and the live view, not the job; it is not asked again)."""
         if self.board is None:
             return {}
         import ray
         try:
-            return ray.get(getattr(self.board, method).remote(version), timeout=5.0)
+            return ray.get(getattr(self.board, method).remote(version), timeout=BOARD_ANSWER_S)
+        except ray.exceptions.GetTimeoutError:
+            return {}
         except Exception:  # noqa: BLE001 - see the docstring
             self.board = None
             return {}
@@ -351,7 +356,8 @@ class RayCollector:
             if on_progress is not None and pending and (ready or time.monotonic() - last_read >= PROGRESS_READ_S):
                 last_read = time.monotonic()
                 report()
-            if on_poses is not None and pending and time.monotonic() - last_poses >= POSES_INTERVAL_S:
+            # and when a worker delivers: the live view then has every worker's last cars, however short
+            if on_poses is not None and (ready or pending and time.monotonic() - last_poses >= POSES_INTERVAL_S):
                 last_poses = time.monotonic()
                 cars = self._read_poses(version)
                 if cars is not None:

@@ -145,7 +145,7 @@ class RolloutWorker:
             return None
         from laplab.cluster.status import POSES_INTERVAL_S, REPORT_INTERVAL_S
         from laplab.sim.state import episodes_done_and_steps
-        last = [time.monotonic(), 0.0]  # the last report, the last poses posted
+        last = [time.monotonic(), -float("inf")]  # the last report, the last poses posted (the first step posts)
 
         def hook(poses, sim_time) -> None:
             now = time.monotonic()

@@ -142,7 +142,7 @@ def _train(files: JobFiles, spec: dict) -> None:
     files.event("started", iteration=trainer.iteration)
 
     def on_iteration(report) -> None:
-        files.event("iteration", report=asdict(report))
+        files.event("iteration", report=report.to_dict())
 
     collector = None
     try:

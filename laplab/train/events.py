@@ -10,7 +10,8 @@ quickly (``on_poses`` runs after every simulation step of the collection).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Protocol
 
 import numpy as np
@@ -43,6 +44,19 @@ class IterationReport:
     # the time limit or a stop request cut this iteration's learning or evaluation short: the checkpoint
     # holds the (partly) trained networks, unevaluated (eval_episodes is 0)
     partial: bool = False
+
+    def to_dict(self) -> dict[str, Any]:
+        """The report as JSON values: a figure that is not a number (the losses of an iteration whose
+        learning the time limit cut before its first minibatch are NaN) becomes None (JSON null)."""
+        return _finite_or_none(asdict(self))
+
+
+def _finite_or_none(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 @dataclass(frozen=True)

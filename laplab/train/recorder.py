@@ -7,8 +7,6 @@ checkpoints with ``deepracer_checkpoints.json``), laplab's per-iteration log and
 
 from __future__ import annotations
 
-from dataclasses import asdict
-
 import numpy as np
 
 from laplab.store.atomic import atomic_write_json, read_json
@@ -95,7 +93,7 @@ class ModelFolderRecorder:
                               resume=checkpoint.write_resume)
 
     def on_iteration(self, report: IterationReport) -> None:
-        self._iteration_rows.append(asdict(report))
+        self._iteration_rows.append(report.to_dict())
         atomic_write_json(self.iterations_log, {"iterations": self._iteration_rows}, indent=None)
 
     def on_error(self, message: str) -> None:

@@ -7,6 +7,7 @@ import io
 import time
 from dataclasses import replace
 
+import numpy as np
 import pytest
 import torch
 from rich.console import Console
@@ -155,3 +156,32 @@ def test_the_printer_shows_the_phase_within_seconds():
     printer._last_line -= 6
     printer.on_progress(PhaseProgress(1, "learn", 120, 800, 5000, 9.0))
     assert "iteration 1: learning, gradient steps 120/800, 5000 env steps" in out.getvalue()
+
+
+def test_a_stop_before_the_first_minibatch_still_writes_the_iteration_log_and_report(laplab_home, tmp_path):
+    # the limit cut learning before any gradient step: the losses are not numbers, written as JSON null
+    from laplab.analysis.loaders import load_training_history
+    from laplab.analysis.report import build_report
+    from laplab.console.service import ModelCatalog
+    from laplab.store.atomic import read_json
+
+    trainer = create_training("cut", _config())
+    stop_now = []
+
+    class StopAtLearning:
+        def on_progress(self, progress):
+            if progress.phase == "learn":
+                stop_now.append(True)
+
+    trainer.subscribe(StopAtLearning())
+    reports = []
+    result = trainer.run(callbacks=(reports.append,), should_stop=lambda: bool(stop_now))
+    trainer.lock.release()
+    assert result.error is None and result.iterations == 1 and reports[0].partial
+    assert reports[0].losses["num_minibatches"] == 0
+    row = read_json(trainer.folder.metrics_dir / "laplab-iterations.json")["iterations"][0]
+    assert row["losses"]["policy_loss"] is None and row["mean_reward"] == reports[0].mean_reward
+    history = load_training_history(trainer.folder)
+    assert history.size == 1 and np.isnan(history.losses.get("policy_loss", [np.nan])[0])
+    assert build_report(trainer.folder, out_dir=tmp_path / "report").is_file()
+    assert ModelCatalog.iterations("cut")[0]["iteration"] == 1
