@@ -15,7 +15,7 @@ _LAZY = {
     "PPOLearner": "laplab.agents.ppo",
     "Rollout": "laplab.agents.ppo",
     "SACLearner": "laplab.agents.sac",
-    "ReplayBuffer": "laplab.agents.sac",
+    "ReplayBuffer": "laplab.agents.replay",
     "ActorCritic": "laplab.agents.networks",
     "ActionSpec": "laplab.agents.networks",
     "PolicyStep": "laplab.agents.networks",

@@ -105,5 +105,8 @@ def build_learner(spec: ModelSpec, hyperparameters: Hyperparameters, seed: int |
         from laplab.agents.ppo import keep_freed_memory
         keep_freed_memory()
     threads = num_threads or (1 if spec.camera is None else None)
+    extra = {}
+    if spec.algorithm == "sac" and not spec.action_space.is_discrete:
+        extra["action_scale"] = spec.action_space.half_ranges()  # DeepRacer's log-probability in the model's units
     return cls(spec.observation_space, spec.gym_action_space, hyperparameters, spec.network, seed=seed,
-               num_threads=threads, precision=precision, device=device)
+               num_threads=threads, precision=precision, device=device, **extra)

@@ -342,22 +342,49 @@ def squashed_gaussian_log_prob(pre_tanh: torch.Tensor, normal: torch.distributio
     return (normal.log_prob(pre_tanh) - correction).sum(-1)
 
 
-class SquashedGaussianActor(nn.Module):
-    """SAC's policy: a state-dependent Gaussian squashed by tanh into (-1, 1)^A."""
+FLOAT32_EPS = float(np.finfo(np.float32).eps)
 
-    def __init__(self, observation_space: gym.spaces.Space, action_dim: int, network_name: str = DEFAULT_NETWORK):
+
+def deepracer_squashed_log_prob(pre_tanh: torch.Tensor, normal: torch.distributions.Normal,
+                                action_scale: torch.Tensor) -> torch.Tensor:
+    """DeepRacer's SAC log-probability (B,) of the squashed action (deepracer-simapp's ``SACPolicyHead``
+    with ``rescale_action_values``): ``log N(u) - sum log(clip(scale * (1 - tanh(u)^2) + eps, 1e-10, 1))``.
+    ``action_scale`` (A,) is half of each action's range in the model's units (30 for steering of
+    -30..30 degrees, 1.5 for 1..4 m/s). The clip at 1 drops the correction, and with it its pull
+    towards the middle of the range, wherever ``scale * (1 - tanh(u)^2) >= 1``: for a 30-degree
+    steering range everywhere but the last 2 % of it."""
+    squashed = torch.tanh(pre_tanh)
+    jacobian = (action_scale * (1.0 - squashed * squashed) + FLOAT32_EPS).clamp(1e-10, 1.0)
+    return (normal.log_prob(pre_tanh) - torch.log(jacobian)).sum(-1)
+
+
+class SquashedGaussianActor(nn.Module):
+    """SAC's policy: a state-dependent Gaussian squashed by tanh into (-1, 1)^A.
+
+    ``action_scale`` (A,) switches the log-probability to DeepRacer's (:func:`deepracer_squashed_log_prob`);
+    without it the exact change of variables into (-1, 1)^A. Either way the actions are the same."""
+
+    def __init__(self, observation_space: gym.spaces.Space, action_dim: int, network_name: str = DEFAULT_NETWORK,
+                 action_scale: Any = None):
         super().__init__()
         self.trunk = build_embedder(observation_space, network_name)
         self.mean = nn.Linear(self.trunk.output_dim, action_dim)
         self.log_std = nn.Linear(self.trunk.output_dim, action_dim)
+        scale = None if action_scale is None else torch.as_tensor(action_scale, dtype=torch.float32).reshape(action_dim)
+        self.register_buffer("action_scale", scale, persistent=False)  # not in checkpoints: it comes from the metadata
 
     def forward(self, observations: Any, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
         """-> actions (B, A) in (-1, 1) (reparameterised, differentiable), log_prob (B,)."""
-        features = self.trunk(observations)
+        return self.from_features(self.trunk(observations), deterministic)
+
+    def from_features(self, features: torch.Tensor, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """The policy's heads on trunk ``features`` (B, F) -> actions (B, A), log_prob (B,)."""
         mean = self.mean(features)
         normal = torch.distributions.Normal(mean, self.log_std(features).clamp(-20.0, 2.0).exp())
         pre_tanh = mean if deterministic else normal.rsample()
-        return torch.tanh(pre_tanh), squashed_gaussian_log_prob(pre_tanh, normal)
+        if self.action_scale is None:
+            return torch.tanh(pre_tanh), squashed_gaussian_log_prob(pre_tanh, normal)
+        return torch.tanh(pre_tanh), deepracer_squashed_log_prob(pre_tanh, normal, self.action_scale)
 
 
 class TwinQ(nn.Module):

@@ -1,14 +1,21 @@
 """Soft Actor-Critic for DeepRacer's continuous action space (``training_algorithm: sac``).
 
-A squashed-Gaussian policy in (-1, 1)^A, twin Q networks with Polyak-averaged targets and a
-fixed entropy temperature ``sac_alpha`` (DeepRacer does not tune it). Gamma is
-``discount_factor``, both optimizers use ``lr``; an iteration makes
-``num_epochs * ceil(new_steps / batch_size)`` gradient steps on uniform replay samples,
-mirroring PPO's passes over the new experience.
+A squashed-Gaussian policy in (-1, 1)^A, twin Q networks and a fixed entropy temperature
+``sac_alpha`` (DeepRacer does not tune it). Gamma is ``discount_factor``, both optimizers use
+``lr``; an iteration makes ``num_epochs * ceil(new_steps / batch_size)`` gradient steps on uniform
+replay samples, mirroring PPO's passes over the new experience. The target critic is a copy of the
+critic taken as each iteration's learning starts and held through it, as DeepRacer's rl_coach
+settings make it (``rate_for_copying_weights_to_target`` 1, copied once per training call).
 
-A gradient step runs the critic's half (its trunk passes, backward, optimizer step and target
-update) on a second thread while the calling thread runs the actor's half, each with half of
-torch's intra-op threads: two independent streams of work keep two cores busy better than two
+Camera models share one trunk (laplab's choice, docs/deviations.md): the actor's heads read the
+critic's trunk features, detached, as in SAC from pixels (SAC-AE, DrQ), so the convolutions learn from
+the critic's loss alone and a gradient step runs one trunk backward pass instead of two. The policy
+keeps DeepRacer's shape (trunk, then the mean and log-std heads): the car and the exports see the same
+network. Vector models (STATE, lidar) keep separate actor and critic trunks, as rl_coach builds them.
+
+With separate trunks, a gradient step runs the critic's half (its trunk passes, backward, optimizer
+step) on a second thread while the calling thread runs the actor's half, each with
+half of torch's intra-op threads: two independent streams of work keep two cores busy better than two
 threads meeting at the end of every operation, most of all on a shared machine.
 """
 
@@ -20,7 +27,7 @@ import math
 import os
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict
-from typing import Any, Callable, Iterator, Mapping, NamedTuple
+from typing import Any, Callable, Iterator, Mapping
 
 import gymnasium as gym
 import numpy as np
@@ -33,122 +40,8 @@ from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, PolicyStep, Squ
                                     TwinQ, action_spec_from, observation_to_tensor, set_compute_precision,
                                     twin_q_from_separate)
 from laplab.agents.ppo import limit_torch_threads
+from laplab.agents.replay import ReplayBatch, ReplayBuffer
 
-TARGET_SMOOTHING = 0.005  # tau of the Polyak target update
-
-
-class ReplayBatch(NamedTuple):
-    """B transitions: observations / next_observations (B, *obs_shape) or dicts of such,
-    actions (B, A) float32 in [-1, 1], rewards (B,) float32, terminated (B,) float32 (1 = no
-    bootstrap)."""
-
-    observations: Any
-    actions: np.ndarray
-    rewards: np.ndarray
-    next_observations: Any
-    terminated: np.ndarray
-
-
-class ReplayBuffer:
-    """A fixed-capacity ring of observations in preallocated numpy arrays (observation dtypes kept,
-    so camera frames stay uint8), each frame stored once.
-
-    Slot ``i`` holds an observation; when it starts a transition (``starts[i]``) it also holds that
-    transition's action, reward and end flag, and its next observation is in slot ``i + 1`` (mod
-    capacity) unless the transition ended its episode (then the next observation is never used:
-    the target is not bootstrapped). Episodes are written in order, so a slot is always overwritten
-    before the slot after it and a transition never points at a newer frame. Capacity counts slots.
-    """
-
-    def __init__(self, capacity: int, observation_space: gym.spaces.Space, action_dim: int):
-        if capacity < 2:
-            raise ValueError(f"Replay buffer capacity must be >= 2, got {capacity}.")
-        self.capacity = int(capacity)
-        self.is_dict = isinstance(observation_space, gym.spaces.Dict)
-        spaces = dict(observation_space.spaces) if self.is_dict else {"": observation_space}
-        self.observations = {k: np.zeros((capacity, *s.shape), s.dtype) for k, s in spaces.items()}
-        self.actions = np.zeros((capacity, action_dim), np.float32)
-        self.rewards = np.zeros(capacity, np.float32)
-        self.terminated = np.zeros(capacity, np.float32)
-        self.starts = np.zeros(capacity, bool)  # the slot starts a transition
-        self.has_next = np.zeros(capacity, bool)  # its next observation is in the following slot
-        self.position = 0
-        self.filled = 0  # slots written
-        self._start_slots: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        """Transitions held."""
-        return int(self.starts.sum()) if self._start_slots is None else len(self._start_slots)
-
-    def _write(self, observations: Any, count: int) -> np.ndarray:
-        slots = (self.position + np.arange(count)) % self.capacity
-        obs = observations if self.is_dict else {"": observations}
-        for key, array in self.observations.items():
-            array[slots] = obs[key]
-        self.starts[slots] = False
-        self.has_next[slots] = False
-        self.position = int((self.position + count) % self.capacity)
-        self.filled = min(self.filled + count, self.capacity)
-        self._start_slots = None
-        return slots
-
-    def add_episode(self, observations: Any, actions: np.ndarray, rewards: np.ndarray, ended: np.ndarray) -> None:
-        """One episode's L steps in order: observations (L, ...) (a dict sensor-wise), actions (L, A),
-        rewards (L,), ended (L,) (1 where the step ended the episode; the observation after step t is
-        observation t + 1 otherwise)."""
-        ended = np.asarray(ended, np.float32).reshape(-1)
-        count = ended.shape[0]
-        if count == 0:
-            return
-        if count > self.capacity - 1:
-            raise ValueError(f"an episode of {count} steps does not fit a replay buffer of {self.capacity} slots")
-        slots = self._write(observations, count)
-        self.actions[slots] = np.asarray(actions, np.float32).reshape(count, -1)
-        self.rewards[slots] = np.asarray(rewards, np.float32).reshape(-1)
-        self.terminated[slots] = ended
-        self.starts[slots] = True
-        self.has_next[slots] = ended == 0
-        if ended[-1] == 0:  # a cut-off tail: its next frame is missing, so it is no transition
-            self.starts[slots[-1]] = False
-
-    def add(self, observations: Any, actions: np.ndarray, rewards: np.ndarray,
-            next_observations: Any, terminated: np.ndarray) -> None:
-        """Store B independent transitions (arrays with leading axis B; dict observations sensor-wise):
-        each takes two slots, its observation and its next observation."""
-        rewards = np.asarray(rewards, np.float32).reshape(-1)
-        batch = rewards.shape[0]
-        if 2 * batch > self.capacity:
-            raise ValueError(f"{batch} transitions do not fit a replay buffer of {self.capacity} slots")
-        pick = lambda o, k: {key: np.asarray(v)[k] for key, v in o.items()} if self.is_dict else np.asarray(o)[k]
-        actions = np.asarray(actions, np.float32).reshape(batch, -1)
-        terminated = np.asarray(terminated, np.float32).reshape(-1)
-        for k in range(batch):
-            first = self._write(_expand(pick(observations, k), self.is_dict), 1)
-            self._write(_expand(pick(next_observations, k), self.is_dict), 1)
-            self.actions[first] = actions[k]
-            self.rewards[first] = rewards[k]
-            self.terminated[first] = terminated[k]
-            self.starts[first] = True
-            self.has_next[first] = True
-
-    def sample(self, batch_size: int, rng: np.random.Generator) -> ReplayBatch:
-        """B transitions drawn uniformly with replacement."""
-        if self._start_slots is None:
-            self._start_slots = np.flatnonzero(self.starts)
-        index = self._start_slots[rng.integers(0, len(self._start_slots), batch_size)]
-        following = np.where(self.has_next[index], (index + 1) % self.capacity, index)
-        obs = {key: value[index] for key, value in self.observations.items()}
-        next_obs = {key: value[following] for key, value in self.observations.items()}
-        if not self.is_dict:
-            obs, next_obs = obs[""], next_obs[""]
-        return ReplayBatch(obs, self.actions[index], self.rewards[index], next_obs, self.terminated[index])
-
-
-def _expand(observation: Any, is_dict: bool) -> Any:
-    """One observation -> a batch of one."""
-    if is_dict:
-        return {key: np.asarray(value)[None] for key, value in observation.items()}
-    return np.asarray(observation)[None]
 
 
 class SACLearner:
@@ -156,7 +49,12 @@ class SACLearner:
 
     ``seed`` seeds torch's global RNG and this learner's numpy RNG (replay sampling).
     ``buffer_capacity`` counts replay slots (one frame each). ``num_threads``: torch threads (see
-    :func:`limit_torch_threads`); with two or more, a gradient step's critic half takes half of them.
+    :func:`limit_torch_threads`); with two or more and separate trunks, a gradient step's critic half
+    takes half of them. ``shared_trunk``: the actor on the critic's trunk (default: camera models);
+    a loaded checkpoint's own layout wins over it. ``action_scale`` (A,): half of each action's range
+    in the model's units (steering degrees, m/s); with it the entropy term uses DeepRacer's
+    log-probability (:func:`laplab.agents.networks.deepracer_squashed_log_prob`), which a training
+    job always gives.
     """
 
     algorithm = "sac"
@@ -166,7 +64,8 @@ class SACLearner:
                  hyperparameters: Hyperparameters = Hyperparameters(),
                  network_name: str = DEFAULT_NETWORK, device: str = "cpu",
                  buffer_capacity: int = 100_000, seed: int | None = None,
-                 num_threads: int | None = None, precision: str = "float32"):
+                 num_threads: int | None = None, precision: str = "float32", shared_trunk: bool | None = None,
+                 action_scale: Any = None):
         limit_torch_threads(num_threads)
         if seed is not None:
             torch.manual_seed(seed)
@@ -177,13 +76,14 @@ class SACLearner:
         self.network_name = network_name
         self.device = torch.device(device)
         dim = self.action_spec.size
-        self.actor = SquashedGaussianActor(observation_space, dim, network_name).to(self.device)
+        self.actor = SquashedGaussianActor(observation_space, dim, network_name, action_scale).to(self.device)
         self.critic = TwinQ(observation_space, dim, network_name).to(self.device)
         self.precision = set_compute_precision(self.actor, precision)
         set_compute_precision(self.critic, self.precision)
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
         self._head_parameters = [*self.critic.q1.parameters(), *self.critic.q2.parameters()]
-        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=hyperparameters.lr, fused=True)
+        self.shared_trunk = False
+        self._share_trunk(_has_camera(self.critic.trunk) if shared_trunk is None else shared_trunk)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=hyperparameters.lr, fused=True)
         self.buffer = ReplayBuffer(buffer_capacity, observation_space, dim)
         self.rng = np.random.default_rng(seed)
@@ -249,13 +149,17 @@ class SACLearner:
                "entropy": float("nan"), "num_gradient_steps": 0}
         if len(self.buffer) < hp.batch_size or num_gradient_steps <= 0:
             return nan
+        with torch.no_grad():  # the iteration's target: the critic as learning starts (in place)
+            torch._foreach_copy_(list(self.target_critic.parameters()), list(self.critic.parameters()))
         totals = torch.zeros(4, dtype=torch.float64)
         done = 0
-        with self._critic_stream() as critic_side:
+        with (contextlib.nullcontext(_run_now) if self.shared_trunk else self._critic_stream()) as critic_side:
             for _ in range(num_gradient_steps):
                 if should_stop is not None and should_stop():
                     break
-                totals += self._gradient_step(self.buffer.sample(hp.batch_size, self.rng), critic_side)
+                batch = self.buffer.sample(hp.batch_size, self.rng)
+                totals += (self._shared_gradient_step(batch) if self.shared_trunk
+                           else self._gradient_step(batch, critic_side))
                 done += 1
                 if on_progress is not None:
                     on_progress(done, num_gradient_steps)
@@ -293,9 +197,8 @@ class SACLearner:
 
     def _gradient_step(self, batch: ReplayBatch, critic_side: Callable[[Callable[[], Any]], Future]) -> torch.Tensor:
         """One step of both networks on one minibatch: the critic towards the soft Bellman target of
-        the target critic, the actor against the critic as it was before this step (rl_coach's order);
-        then the target critic moves ``TARGET_SMOOTHING`` of the way (in place). The critic's trunk
-        runs once for both Q heads and both losses. ``critic_side`` runs the critic's trunk passes,
+        the target critic, the actor against the critic as it was before this step (rl_coach's order).
+        The critic's trunk runs once for both Q heads and both losses. ``critic_side`` runs the critic's trunk passes,
         backward pass and updates alongside the actor's (the two graphs share no parameter)."""
         hp, device = self.hyperparameters, self.device
         obs = observation_to_tensor(batch.observations, device)
@@ -330,21 +233,61 @@ class SACLearner:
         actor_loss.backward()
         # after the actor's backward, which needs the critic's heads as they were; in order after
         # the critic's backward, and not at all if that failed
-        critic_update = critic_side(lambda: (critic_backward.result(), self._critic_update()))
+        critic_update = critic_side(lambda: (critic_backward.result(), self.critic_optimizer.step()))
         self.actor_optimizer.step()
         critic_update.result()
         self.gradient_steps += 1
         return torch.stack([critic_loss.detach(), actor_loss.detach(), q1.detach().mean(),
                             -log_probs.detach().mean()]).double()
 
-    def _critic_update(self) -> None:
-        self.critic_optimizer.step()
+    def _shared_gradient_step(self, batch: ReplayBatch) -> torch.Tensor:
+        """One step on one minibatch with the actor on the critic's trunk: the critic (trunk and
+        heads) towards the soft Bellman target, the actor's heads on the trunk's features detached,
+        against the critic's heads as they were before this step. The trunk runs forward three times (the minibatch with
+        gradients, the next observations for the next actions and, as the target, for their values)
+        and backward once."""
+        hp, device = self.hyperparameters, self.device
+        obs = observation_to_tensor(batch.observations, device)
+        next_obs = observation_to_tensor(batch.next_observations, device)
+        actions, rewards, terminated = (torch.as_tensor(x, device=device)
+                                        for x in (batch.actions, batch.rewards, batch.terminated))
         with torch.no_grad():
-            torch._foreach_lerp_(list(self.target_critic.parameters()), list(self.critic.parameters()),
-                                 TARGET_SMOOTHING)
+            next_actions, next_log_probs = self.actor(next_obs)
+            target = sac_critic_target(rewards, terminated, *self.target_critic(next_obs, next_actions),
+                                       next_log_probs, hp.discount_factor, hp.sac_alpha)
+        features = self.critic.trunk(obs)
+        q1, q2 = self.critic.heads(features, actions)
+        critic_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)
+        detached = features.detach()
+        new_actions, log_probs = self.actor.from_features(detached)
+        for parameter in self._head_parameters:  # the actor's loss must not train the critic
+            parameter.requires_grad_(False)
+        actor_loss = sac_actor_loss(*self.critic.heads(detached, new_actions), log_probs, hp.sac_alpha)
+        for parameter in self._head_parameters:
+            parameter.requires_grad_(True)
+        self.critic_optimizer.zero_grad(set_to_none=True)
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        (critic_loss + actor_loss).backward()  # the two losses share no parameter
+        self.actor_optimizer.step()
+        self.critic_optimizer.step()
+        self.gradient_steps += 1
+        return torch.stack([critic_loss.detach(), actor_loss.detach(), q1.detach().mean(),
+                            -log_probs.detach().mean()]).double()
+
+    def _share_trunk(self, shared: bool) -> None:
+        """Put the actor on the critic's trunk (``shared``) or on its own, and give the actor a fresh
+        optimizer over what it trains: its heads when shared, all of it otherwise."""
+        if shared:
+            self.actor.trunk = self.critic.trunk
+        elif self.shared_trunk:  # leave the critic's trunk: the actor's own starts as a copy of it
+            self.actor.trunk = copy.deepcopy(self.critic.trunk)
+        self.shared_trunk = bool(shared)
+        trained = ([*self.actor.mean.parameters(), *self.actor.log_std.parameters()] if shared
+                   else list(self.actor.parameters()))
+        self.actor_optimizer = torch.optim.Adam(trained, lr=self.hyperparameters.lr, fused=True)
 
     def _config(self) -> dict[str, Any]:
-        return {"algorithm": "sac", "gradient_steps": self.gradient_steps,
+        return {"algorithm": "sac", "gradient_steps": self.gradient_steps, "shared_trunk": self.shared_trunk,
                 "hyperparameters": self.hyperparameters.to_dict(), "network_name": self.network_name,
                 "action_spec": asdict(self.action_spec)}
 
@@ -354,19 +297,21 @@ class SACLearner:
         return {**self._config(), "actor": self.actor.state_dict(), "critic": self.critic.state_dict()}
 
     def state_dict(self) -> dict[str, Any]:
-        """Everything to resume: weights, target critic, optimizers and config (the replay buffer is
-        not saved)."""
-        return {**self.weights_state(), "target_critic": self.target_critic.state_dict(),
+        """Everything to resume: weights, optimizers and config. Neither the replay buffer nor the
+        target critic is saved: the next update copies the target from the critic as it starts."""
+        return {**self.weights_state(),
                 "actor_optimizer": self.actor_optimizer.state_dict(),
                 "critic_optimizer": self.critic_optimizer.state_dict()}
 
     def load_weights(self, state: Mapping[str, Any]) -> None:
         """Start from the network weights of ``state`` (a clone: fresh optimizers; the target critic
-        starts as a copy of the critic)."""
+        starts as a copy of the critic), in its layout: a checkpoint from before shared trunks (no
+        ``shared_trunk``) keeps its actor's own trunk."""
         if state.get("algorithm") != self.algorithm:
             raise ValueError(f"cannot start a {type(self).__name__} from a {state.get('algorithm')} checkpoint")
-        self.actor.load_state_dict(state["actor"])
+        self._share_trunk(bool(state.get("shared_trunk", False)))
         self.critic.load_state_dict(twin_q_from_separate(state["critic"]))
+        self.actor.load_state_dict(state["actor"])
         self.target_critic.load_state_dict(self.critic.state_dict())
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
@@ -378,9 +323,7 @@ class SACLearner:
                 f"Checkpoint ({state.get('algorithm')}, network {saved[0]!r}, actions {saved[1]}) does "
                 f"not match this SAC learner ({self.network_name!r}, {asdict(self.action_spec)})."
             )
-        self.load_weights(state)
-        if "target_critic" in state:
-            self.target_critic.load_state_dict(twin_q_from_separate(state["target_critic"]))
+        self.load_weights(state)  # an older state's "target_critic" is not needed: see state_dict()
         if "actor_optimizer" in state and "critic_optimizer" in state and not _separate_layout(state):
             self.actor_optimizer.load_state_dict(state["actor_optimizer"])
             self.critic_optimizer.load_state_dict(state["critic_optimizer"])
@@ -395,6 +338,11 @@ def _run_now(fn: Callable[[], Any]) -> Future:
     except BaseException as error:  # noqa: BLE001 - handed to whoever reads the result
         future.set_exception(error)
     return future
+
+
+def _has_camera(trunk: torch.nn.Module) -> bool:
+    """Whether an observation trunk has convolutions (a camera model)."""
+    return any(isinstance(module, torch.nn.Conv2d) for module in trunk.modules())
 
 
 def _separate_layout(state: Mapping[str, Any]) -> bool:

@@ -63,6 +63,13 @@ class ActionSpace:
         lo_v, hi_v = self.speed
         return lo_s + (a[:, 0] + 1.0) * 0.5 * (hi_s - lo_s), lo_v + (a[:, 1] + 1.0) * 0.5 * (hi_v - lo_v)
 
+    def half_ranges(self) -> tuple[float, float]:
+        """Continuous: half of the steering range (degrees) and of the speed range (m/s), the scales of
+        DeepRacer's SAC log-probability (:func:`laplab.agents.networks.deepracer_squashed_log_prob`)."""
+        if self.is_discrete:
+            raise ActionSpaceError("a discrete action space has no ranges")
+        return 0.5 * (self.steering[1] - self.steering[0]), 0.5 * (self.speed[1] - self.speed[0])
+
     def to_commands(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Batch of policy actions -> (steering rad (N,), speed m/s (N,)) for the simulator."""
         steer_deg, speed = self.to_physical(actions)

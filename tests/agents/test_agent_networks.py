@@ -9,7 +9,7 @@ from torch import nn
 from laplab.agents import networks
 from laplab.agents.networks import (ActionSpec, ActorCritic, CameraEmbedder, SquashedGaussianActor, TwinQ,
                                     action_spec_from, build_embedder, resolve_precision, set_compute_precision,
-                                    squashed_gaussian_log_prob)
+                                    deepracer_squashed_log_prob, squashed_gaussian_log_prob)
 
 CAMERA = gym.spaces.Box(0, 255, (1, 120, 160), np.uint8)
 STEREO = gym.spaces.Box(0, 255, (2, 120, 160), np.uint8)
@@ -150,6 +150,38 @@ def test_squashed_log_prob_matches_change_of_variables():
     normal = torch.distributions.Normal(torch.tensor([[0.1, 0.0]]), torch.tensor([[0.5, 2.0]]))
     expected = (normal.log_prob(u) - torch.log(1 - torch.tanh(u) ** 2)).sum(-1)
     torch.testing.assert_close(squashed_gaussian_log_prob(u, normal), expected)
+
+
+def test_deepracer_log_prob_drops_the_squash_correction_where_the_scaled_jacobian_passes_one():
+    # deepracer-simapp's SAC head: log N(u) - sum log(clip(scale * (1 - tanh(u)^2) + eps, 1e-10, 1))
+    u = torch.tensor([[0.3, -1.2], [3.0, 0.2]])
+    mean = torch.tensor([[0.1, 0.0], [2.0, 0.0]])
+    normal = torch.distributions.Normal(mean, torch.tensor([[0.5, 2.0], [0.5, 2.0]]))
+    scale = torch.tensor([30.0, 1.5])
+    jacobian = (scale * (1 - torch.tanh(u) ** 2) + np.finfo(np.float32).eps).clamp(1e-10, 1.0)
+    expected = (normal.log_prob(u) - torch.log(jacobian)).sum(-1)
+    got = deepracer_squashed_log_prob(u, normal, scale)
+    torch.testing.assert_close(got, expected)
+    # steering at 0.3: 30 * (1 - tanh^2) > 1, no correction; speed at -1.2: 1.5 * 0.31 < 1, corrected
+    torch.testing.assert_close(got[0], (normal.log_prob(u)[0]).sum() - torch.log(1.5 * (1 - torch.tanh(u[0, 1]) ** 2)))
+    # reparameterised (u = mean + std * noise), the clip leaves the policy's mean no pull towards the
+    # middle of the range from the entropy term; the exact change of variables has one
+    mean = torch.tensor([[0.1, 0.2]], requires_grad=True)
+    std, noise = torch.tensor([[0.5, 2.0]]), torch.tensor([[0.4, 0.1]])
+    for log_prob, pulled in ((lambda u, n: deepracer_squashed_log_prob(u, n, scale), False),
+                             (squashed_gaussian_log_prob, True)):
+        (grad,) = torch.autograd.grad(log_prob(mean + std * noise, torch.distributions.Normal(mean, std)).sum(), mean)
+        assert bool((grad.abs() > 1e-3).all()) == pulled
+
+
+def test_a_sac_actor_with_action_scales_keeps_them_out_of_its_state_dict():
+    space = gym.spaces.Box(-1, 1, (4,), np.float32)
+    actor = SquashedGaussianActor(space, 2, "MLP", action_scale=(30.0, 1.5))
+    assert "action_scale" not in actor.state_dict()
+    plain = SquashedGaussianActor(space, 2, "MLP")
+    plain.load_state_dict(actor.state_dict())  # exports and evaluation build the actor without scales
+    obs = torch.zeros(3, 4)
+    torch.testing.assert_close(plain(obs, deterministic=True)[0], actor(obs, deterministic=True)[0])
 
 
 STATE_VECTOR = gym.spaces.Box(-np.inf, np.inf, (27,), np.float32)

@@ -91,7 +91,7 @@ def test_learner_learns_whole_episodes_into_the_buffer():
     assert stats["num_gradient_steps"] == 3 * 2  # 3 epochs x ceil(50 / 32)
 
 
-def test_gradient_step_runs_each_trunk_once_and_moves_targets_in_place():
+def test_gradient_step_runs_each_trunk_once_and_the_target_is_the_critic_as_the_update_starts():
     learner = SACLearner(STATE, ONE_D, Hyperparameters(batch_size=32), "MLP", seed=0)
     obs = np.linspace(-1, 1, 40, dtype=np.float32)[:, None]
     learner.observe(obs, learner.act(obs).action, obs[:, 0], obs, np.zeros(40))
@@ -99,12 +99,16 @@ def test_gradient_step_runs_each_trunk_once_and_moves_targets_in_place():
     for name, module in (("actor", learner.actor.trunk), ("critic", learner.critic.trunk),
                          ("target", learner.target_critic.trunk)):
         module.register_forward_hook(lambda *_, name=name: calls.__setitem__(name, calls[name] + 1))
-    target_before = [p.detach().clone() for p in learner.target_critic.parameters()]
+    learner.update(2)  # the target critic moves away from the critic...
+    critic_before = [p.detach().clone() for p in learner.critic.parameters()]
     target_storage = [p.data_ptr() for p in learner.target_critic.parameters()]
+    calls.update(actor=0, critic=0, target=0)
     learner.update(1)
     assert calls == {"actor": 2, "critic": 1, "target": 1}  # s' and s for the actor; one critic pass for both heads
-    for before, after, critic in zip(target_before, learner.target_critic.parameters(), learner.critic.parameters()):
-        torch.testing.assert_close(after, before + 0.005 * (critic - before))
+    # ...and is the critic as this update started (DeepRacer's copy per training call), copied in place
+    for before, after in zip(critic_before, learner.target_critic.parameters()):
+        torch.testing.assert_close(after, before)
+    assert not all(torch.equal(a, b) for a, b in zip(learner.target_critic.parameters(), learner.critic.parameters()))
     assert [p.data_ptr() for p in learner.target_critic.parameters()] == target_storage
 
 
@@ -173,3 +177,65 @@ def test_state_dict_round_trip():
     assert restored.gradient_steps == 3
     with pytest.raises(ValueError, match="does not match"):
         restored.load_state_dict({**learner.state_dict(), "algorithm": "clipped_ppo"})
+
+
+SMALL_CAMERA = gym.spaces.Box(0, 255, (1, 40, 48), np.uint8)  # the SHALLOW convs end at 1 x 3
+CONTINUOUS = {"action_space": {}, "action_space_type": "continuous"}
+
+
+def _camera_learner(seed, **kwargs):
+    learner = SACLearner(SMALL_CAMERA, CONTINUOUS, Hyperparameters(batch_size=32), seed=seed, num_threads=1,
+                         buffer_capacity=200, **kwargs)
+    rng = np.random.default_rng(seed)
+    frames = rng.integers(0, 256, (80, *SMALL_CAMERA.shape), dtype=np.uint8)
+    learner.observe(frames[:40], rng.uniform(-1, 1, (40, 2)).astype(np.float32), rng.normal(size=40).astype(np.float32),
+                    frames[40:], np.zeros(40, np.float32))
+    return learner, frames
+
+
+def test_a_camera_actor_reads_the_critics_trunk_and_trains_only_its_heads():
+    learner, _ = _camera_learner(0)
+    assert learner.shared_trunk and learner.actor.trunk is learner.critic.trunk
+    trained = {id(p) for group in learner.actor_optimizer.param_groups for p in group["params"]}
+    assert trained == {id(p) for m in (learner.actor.mean, learner.actor.log_std) for p in m.parameters()}
+    calls = {"critic": 0, "target": 0}
+    for name, module in (("critic", learner.critic.trunk), ("target", learner.target_critic.trunk)):
+        module.register_forward_hook(lambda *_, name=name: calls.__setitem__(name, calls[name] + 1))
+    heads_before = learner.actor.mean.weight.detach().clone()
+    learner.update(1)
+    assert calls == {"critic": 2, "target": 1}  # s with gradients, s' for the next actions; s' for their values
+    assert not torch.equal(heads_before, learner.actor.mean.weight)
+    assert not SACLearner(STATE, ONE_D, Hyperparameters(), "MLP", seed=0).shared_trunk  # vectors: rl_coach's layout
+
+
+def test_a_shared_trunk_checkpoint_round_trips_and_is_saved_once(tmp_path):
+    learner, frames = _camera_learner(0)
+    learner.update(2)
+    for state in (learner.state_dict(), learner.weights_state()):
+        restored, _ = _camera_learner(5)
+        restored.load_state_dict(state)
+        assert restored.shared_trunk and restored.actor.trunk is restored.critic.trunk
+        np.testing.assert_allclose(restored.act(frames[:8], deterministic=True).env_action,
+                                   learner.act(frames[:8], deterministic=True).env_action, rtol=1e-5, atol=1e-6)
+        assert restored.update(1)["num_gradient_steps"] == 1
+    separate, _ = _camera_learner(0, shared_trunk=False)
+    torch.save(learner.weights_state(), tmp_path / "shared.ckpt")
+    torch.save(separate.weights_state(), tmp_path / "separate.ckpt")
+    trunk_bytes = 4 * sum(p.numel() for p in learner.critic.trunk.parameters())
+    saved = (tmp_path / "separate.ckpt").stat().st_size - (tmp_path / "shared.ckpt").stat().st_size
+    assert saved > 0.9 * trunk_bytes  # the trunk is written once
+
+
+def test_a_camera_checkpoint_from_before_shared_trunks_keeps_its_actors_own_trunk():
+    old, frames = _camera_learner(1, shared_trunk=False)
+    old.update(2)
+    state = old.state_dict()
+    del state["shared_trunk"]  # what laplab wrote before
+    restored, _ = _camera_learner(4)
+    restored.load_state_dict(state)
+    assert not restored.shared_trunk and restored.actor.trunk is not restored.critic.trunk
+    np.testing.assert_allclose(restored.act(frames[:8], deterministic=True).env_action,
+                               old.act(frames[:8], deterministic=True).env_action, rtol=1e-5, atol=1e-6)
+    assert {id(p) for g in restored.actor_optimizer.param_groups for p in g["params"]} == \
+        {id(p) for p in restored.actor.parameters()}
+    assert restored.update(1)["num_gradient_steps"] == 1
