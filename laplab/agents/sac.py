@@ -243,9 +243,9 @@ class SACLearner:
     def _shared_gradient_step(self, batch: ReplayBatch) -> torch.Tensor:
         """One step on one minibatch with the actor on the critic's trunk: the critic (trunk and
         heads) towards the soft Bellman target, the actor's heads on the trunk's features detached,
-        against the critic's heads as they were before this step. The trunk runs forward three times (the minibatch with
-        gradients, the next observations for the next actions and, as the target, for their values)
-        and backward once."""
+        against the critic's heads as they were before this step. The trunk runs forward three times
+        (the minibatch with gradients, the next observations for the next actions and, as the target,
+        for their values) and backward once."""
         hp, device = self.hyperparameters, self.device
         obs = observation_to_tensor(batch.observations, device)
         next_obs = observation_to_tensor(batch.next_observations, device)
