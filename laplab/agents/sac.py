@@ -14,9 +14,9 @@ keeps DeepRacer's shape (trunk, then the mean and log-std heads): the car and th
 network. Vector models (STATE, lidar) keep separate actor and critic trunks, as rl_coach builds them.
 
 With separate trunks, a gradient step runs the critic's half (its trunk passes, backward, optimizer
-step) on a second thread while the calling thread runs the actor's half, each with
-half of torch's intra-op threads: two independent streams of work keep two cores busy better than two
-threads meeting at the end of every operation, most of all on a shared machine.
+step) on a second thread while the calling thread runs the actor's half, each with half of torch's
+intra-op threads: two independent streams of work keep two cores busy better than two threads
+meeting at the end of every operation, most of all on a shared machine.
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ import torch.nn.functional as F
 from laplab.agents.hyperparameters import Hyperparameters
 from laplab.agents.losses import sac_actor_loss, sac_critic_target
 from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, PolicyStep, SquashedGaussianActor,
-                                    TwinQ, action_spec_from, observation_to_tensor, set_compute_precision,
-                                    twin_q_from_separate)
+                                    TwinQ, action_spec_from, has_convolutions, observation_to_tensor,
+                                    set_compute_precision, twin_q_from_separate)
 from laplab.agents.ppo import limit_torch_threads
 from laplab.agents.replay import ReplayBatch, ReplayBuffer
 
@@ -83,7 +83,7 @@ class SACLearner:
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
         self._head_parameters = [*self.critic.q1.parameters(), *self.critic.q2.parameters()]
         self.shared_trunk = False
-        self._share_trunk(_has_camera(self.critic.trunk) if shared_trunk is None else shared_trunk)
+        self._share_trunk(has_convolutions(self.critic.trunk) if shared_trunk is None else shared_trunk)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=hyperparameters.lr, fused=True)
         self.buffer = ReplayBuffer(buffer_capacity, observation_space, dim)
         self.rng = np.random.default_rng(seed)
@@ -198,13 +198,11 @@ class SACLearner:
     def _gradient_step(self, batch: ReplayBatch, critic_side: Callable[[Callable[[], Any]], Future]) -> torch.Tensor:
         """One step of both networks on one minibatch: the critic towards the soft Bellman target of
         the target critic, the actor against the critic as it was before this step (rl_coach's order).
-        The critic's trunk runs once for both Q heads and both losses. ``critic_side`` runs the critic's trunk passes,
-        backward pass and updates alongside the actor's (the two graphs share no parameter)."""
-        hp, device = self.hyperparameters, self.device
-        obs = observation_to_tensor(batch.observations, device)
-        next_obs = observation_to_tensor(batch.next_observations, device)
-        actions, rewards, terminated = (torch.as_tensor(x, device=device)
-                                        for x in (batch.actions, batch.rewards, batch.terminated))
+        The critic's trunk runs once for both Q heads and both losses. ``critic_side`` runs the
+        critic's trunk passes, backward pass and updates alongside the actor's (the two graphs share
+        no parameter)."""
+        hp = self.hyperparameters
+        obs, next_obs, actions, rewards, terminated = self._tensors(batch)
 
         def critic_trunks() -> tuple[torch.Tensor, torch.Tensor]:
             with torch.no_grad():  # grad mode is per thread
@@ -221,11 +219,7 @@ class SACLearner:
                                        next_log_probs, hp.discount_factor, hp.sac_alpha)
         q1, q2 = self.critic.heads(features, actions)
         critic_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)
-        for parameter in self._head_parameters:  # the actor's loss must not train the critic
-            parameter.requires_grad_(False)
-        actor_loss = sac_actor_loss(*self.critic.heads(features.detach(), new_actions), log_probs, hp.sac_alpha)
-        for parameter in self._head_parameters:
-            parameter.requires_grad_(True)
+        actor_loss = self._actor_loss(features.detach(), new_actions, log_probs)
 
         self.critic_optimizer.zero_grad(set_to_none=True)
         self.actor_optimizer.zero_grad(set_to_none=True)
@@ -237,8 +231,7 @@ class SACLearner:
         self.actor_optimizer.step()
         critic_update.result()
         self.gradient_steps += 1
-        return torch.stack([critic_loss.detach(), actor_loss.detach(), q1.detach().mean(),
-                            -log_probs.detach().mean()]).double()
+        return _step_stats(critic_loss, actor_loss, q1, log_probs)
 
     def _shared_gradient_step(self, batch: ReplayBatch) -> torch.Tensor:
         """One step on one minibatch with the actor on the critic's trunk: the critic (trunk and
@@ -246,11 +239,8 @@ class SACLearner:
         against the critic's heads as they were before this step. The trunk runs forward three times
         (the minibatch with gradients, the next observations for the next actions and, as the target,
         for their values) and backward once."""
-        hp, device = self.hyperparameters, self.device
-        obs = observation_to_tensor(batch.observations, device)
-        next_obs = observation_to_tensor(batch.next_observations, device)
-        actions, rewards, terminated = (torch.as_tensor(x, device=device)
-                                        for x in (batch.actions, batch.rewards, batch.terminated))
+        hp = self.hyperparameters
+        obs, next_obs, actions, rewards, terminated = self._tensors(batch)
         with torch.no_grad():
             next_actions, next_log_probs = self.actor(next_obs)
             target = sac_critic_target(rewards, terminated, *self.target_critic(next_obs, next_actions),
@@ -260,19 +250,32 @@ class SACLearner:
         critic_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)
         detached = features.detach()
         new_actions, log_probs = self.actor.from_features(detached)
-        for parameter in self._head_parameters:  # the actor's loss must not train the critic
-            parameter.requires_grad_(False)
-        actor_loss = sac_actor_loss(*self.critic.heads(detached, new_actions), log_probs, hp.sac_alpha)
-        for parameter in self._head_parameters:
-            parameter.requires_grad_(True)
+        actor_loss = self._actor_loss(detached, new_actions, log_probs)
         self.critic_optimizer.zero_grad(set_to_none=True)
         self.actor_optimizer.zero_grad(set_to_none=True)
         (critic_loss + actor_loss).backward()  # the two losses share no parameter
         self.actor_optimizer.step()
         self.critic_optimizer.step()
         self.gradient_steps += 1
-        return torch.stack([critic_loss.detach(), actor_loss.detach(), q1.detach().mean(),
-                            -log_probs.detach().mean()]).double()
+        return _step_stats(critic_loss, actor_loss, q1, log_probs)
+
+    def _tensors(self, batch: ReplayBatch) -> tuple[Any, Any, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """A minibatch on the learner's device: observations, next observations, actions, rewards,
+        terminated."""
+        device = self.device
+        return (observation_to_tensor(batch.observations, device),
+                observation_to_tensor(batch.next_observations, device),
+                *(torch.as_tensor(x, device=device) for x in (batch.actions, batch.rewards, batch.terminated)))
+
+    def _actor_loss(self, features: torch.Tensor, new_actions: torch.Tensor, log_probs: torch.Tensor) -> torch.Tensor:
+        """SAC's policy loss on the critic's heads with their weights held fixed (the actor's loss must
+        not train the critic; its gradient still flows through them to the actions)."""
+        for parameter in self._head_parameters:
+            parameter.requires_grad_(False)
+        loss = sac_actor_loss(*self.critic.heads(features, new_actions), log_probs, self.hyperparameters.sac_alpha)
+        for parameter in self._head_parameters:
+            parameter.requires_grad_(True)
+        return loss
 
     def _share_trunk(self, shared: bool) -> None:
         """Put the actor on the critic's trunk (``shared``) or on its own, and give the actor a fresh
@@ -340,9 +343,11 @@ def _run_now(fn: Callable[[], Any]) -> Future:
     return future
 
 
-def _has_camera(trunk: torch.nn.Module) -> bool:
-    """Whether an observation trunk has convolutions (a camera model)."""
-    return any(isinstance(module, torch.nn.Conv2d) for module in trunk.modules())
+def _step_stats(critic_loss: torch.Tensor, actor_loss: torch.Tensor, q1: torch.Tensor,
+                log_probs: torch.Tensor) -> torch.Tensor:
+    """A step's critic loss, actor loss, mean Q and entropy (= -mean log pi), float64 (4,)."""
+    return torch.stack([critic_loss.detach(), actor_loss.detach(), q1.detach().mean(),
+                        -log_probs.detach().mean()]).double()
 
 
 def _separate_layout(state: Mapping[str, Any]) -> bool:
