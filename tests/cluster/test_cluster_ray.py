@@ -6,7 +6,6 @@ worker count, and a raising reward function's usual error paragraph."""
 from __future__ import annotations
 
 import json
-import logging
 import os
 import subprocess
 import sys
@@ -18,6 +17,7 @@ import pytest
 
 ray = pytest.importorskip("ray")
 
+from laplab.cluster.collector import connect_ray  # noqa: E402
 from laplab.cluster.launch import attach_workers  # noqa: E402
 from laplab.cluster.status import read_workers  # noqa: E402
 from laplab.env.metadata import ModelMetadata  # noqa: E402
@@ -31,7 +31,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)
 
 @pytest.fixture(scope="module")
 def local_ray():
-    ray.init(num_cpus=2, include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False)
+    assert connect_ray(None, 2)  # laplab's own local Ray, as `laplab train --workers 2` starts it
     yield
     ray.shutdown()
 
