@@ -34,7 +34,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from laplab.export.policy_layers import Dense, PolicyLayers, SensorBranch
+from laplab.export.policy_layers import PolicyLayers, SensorBranch
 from laplab.export.tensorflow_graph import _import_tensorflow, input_node_name
 
 NETWORK_SCOPE = {"clipped_ppo": "main_level/agent/main/online", "sac": "main_level/agent/policy/online"}

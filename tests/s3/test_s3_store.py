@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import tarfile
 
-import pytest
 
 from laplab.cli import main
 from tests.s3.conftest import keys

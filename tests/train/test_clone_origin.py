@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
 
 from laplab.analysis.report import build_report
 from laplab.store.layout import model_folder
