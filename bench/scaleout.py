@@ -17,9 +17,16 @@ the iteration's episodes are: an untrained policy crashes within ~15 steps, the 
 ``--trained-seconds S`` every variant drives the weights of a policy first trained in-process for S
 seconds instead (episodes as a training has them after its first minutes).
 
+With ``--training-seconds S`` it times whole training instead, as a user's job runs: ``Trainer.run``
+for S seconds (collection, PPO's learning, the evaluation laps, checkpoints, logs) from the same seed,
+after the same two warm-up collections, and prints training env steps per wall second. Each run's
+policy learns from its own episodes, so the variants drive different episodes; alternate several
+runs (``--repeats``) and compare medians.
+
 Usage:
   python bench/scaleout.py [--sensors STATE FRONT_FACING_CAMERA] [--workers 1 2] [--iterations 3]
                            [--episodes 20] [--trained-seconds 0] [--ray-address ADDR]
+                           [--training-seconds 0] [--repeats 1]
 """
 
 from __future__ import annotations
@@ -67,8 +74,7 @@ def steps_per_second(trainer, iterations: int) -> tuple[float, float, dict[str, 
         trainer.episodes += len(batch.status)
         return batch
 
-    for _ in range(2):  # warm-up: JIT, first frames, the allocator (a first iteration is not enough for camera)
-        collect()
+    warm_up(trainer)
     steps, batched, driving, started, parts = 0, 0, 0.0, time.perf_counter(), {}
     for _ in range(iterations):
         batch = collect()
@@ -82,6 +88,49 @@ def steps_per_second(trainer, iterations: int) -> tuple[float, float, dict[str, 
     return steps / wall, driving / wall, parts
 
 
+def warm_up(trainer) -> None:
+    """Two collections, not timed: JIT compilation, first frames, the allocator (a first iteration is
+    not enough for camera); the episode count moves on as the trainer's loop moves it."""
+    for _ in range(2):
+        batch = trainer._collect(lambda: False, time.perf_counter())
+        trainer.episodes += len(batch.status)
+
+
+def training_steps_per_second(trainer) -> tuple[float, int]:
+    """(training env steps per wall second of ``trainer.run()`` after :func:`warm_up`, iterations)."""
+    warm_up(trainer)
+    steps, iterations, started = trainer.env_steps, trainer.iteration, time.perf_counter()
+    trainer.run()
+    return (trainer.env_steps - steps) / (time.perf_counter() - started), trainer.iteration - iterations
+
+
+def compare_training(sensor: str, args) -> None:
+    """Whole training, in-process against Ray x1 (and xN), ``args.repeats`` alternated runs each."""
+    from statistics import median
+
+    from laplab.cluster.launch import attach_workers
+
+    figures: dict = {}
+    for repeat in range(args.repeats):
+        for workers in ["in-process", *args.workers]:
+            label = workers if workers == "in-process" else f"ray x{workers}"
+            name = f"train-{repeat}-{str(workers).replace(' ', '')}-{sensor.lower().replace('_', '-')}"
+            trainer = make_trainer(name, sensor, args.episodes, 1 if workers == "in-process" else workers,
+                                   max_time_s=args.training_seconds)
+            if workers == "in-process":
+                rate, iterations = training_steps_per_second(trainer)
+            else:
+                with attach_workers(trainer, workers, args.ray_address):
+                    rate, iterations = training_steps_per_second(trainer)
+            figures.setdefault(workers, []).append(rate)
+            print(f"{sensor:20s} run {repeat} {label:11s} {rate:9.1f} training env steps/s "
+                  f"({iterations} iterations in {args.training_seconds:g} s)", flush=True)
+    base = median(figures["in-process"])
+    for workers in args.workers:
+        print(f"{sensor:20s} training: ray x{workers} / in-process = {median(figures[workers]) / base:.2f} "
+              f"(medians of {args.repeats}: {median(figures[workers]):.1f} / {base:.1f} env steps/s)", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sensors", nargs="+", default=["STATE", "FRONT_FACING_CAMERA"])
@@ -91,6 +140,9 @@ def main() -> None:
     parser.add_argument("--trained-seconds", type=float, default=0.0,
                         help="drive a policy first trained in-process this long (0: untrained weights)")
     parser.add_argument("--ray-address", default=None)
+    parser.add_argument("--training-seconds", type=float, default=0.0,
+                        help="time whole training runs of this many seconds instead of the collection step")
+    parser.add_argument("--repeats", type=int, default=1, help="alternated training runs per variant")
     args = parser.parse_args()
     os.environ.setdefault("LAPLAB_HOME", tempfile.mkdtemp(prefix="laplab-scaleout-"))
 
@@ -103,6 +155,9 @@ def main() -> None:
     print(f"cpus {os.cpu_count()}, ray cluster cpus {ray.cluster_resources().get('CPU')}, "
           f"{args.episodes} cars per iteration, {args.iterations} timed iterations", flush=True)
     for sensor in args.sensors:
+        if args.training_seconds > 0:
+            compare_training(sensor, args)
+            continue
         figures = {}
         weights = trained_weights(sensor, args.episodes, args.trained_seconds) if args.trained_seconds > 0 else None
         trainer = make_trainer(f"inproc-{sensor.lower().replace('_', '-')}", sensor, args.episodes, 1, weights)
