@@ -19,7 +19,8 @@ seconds instead (episodes as a training has them after its first minutes).
 
 With ``--training-seconds S`` it times whole training instead, as a user's job runs: ``Trainer.run``
 for S seconds (collection, PPO's learning, the evaluation laps, checkpoints, logs) from the same seed,
-after the same two warm-up collections, and prints training env steps per wall second. Each run's
+after the same two warm-up collections, and prints training env steps per wall second up to the end
+of the last whole iteration. Each run's
 policy learns from its own episodes, so the variants drive different episodes; alternate several
 runs (``--repeats``) and compare medians.
 
@@ -96,12 +97,30 @@ def warm_up(trainer) -> None:
         trainer.episodes += len(batch.status)
 
 
+class IterationEnds:
+    """Listener: the wall time and env step count at the end of each whole (not time-cut) iteration."""
+
+    def __init__(self) -> None:
+        self.ends: list[tuple[float, int]] = []
+
+    def on_iteration(self, report) -> None:
+        if not report.partial:
+            self.ends.append((time.perf_counter(), report.env_steps))
+
+
 def training_steps_per_second(trainer) -> tuple[float, int]:
-    """(training env steps per wall second of ``trainer.run()`` after :func:`warm_up`, iterations)."""
+    """(training env steps per wall second of ``trainer.run()`` after :func:`warm_up`, whole iterations),
+    counted up to the end of the last whole iteration: the time limit's cut iteration (its episodes
+    dropped) would otherwise weigh by where it fell, a fifth of a minute's run for a camera iteration."""
     warm_up(trainer)
-    steps, iterations, started = trainer.env_steps, trainer.iteration, time.perf_counter()
+    ends = IterationEnds()
+    trainer.subscribe(ends)
+    steps, started = trainer.env_steps, time.perf_counter()
     trainer.run()
-    return (trainer.env_steps - steps) / (time.perf_counter() - started), trainer.iteration - iterations
+    if not ends.ends:
+        raise SystemExit(f"no whole iteration in {trainer.config.max_time_s:g} s: give --training-seconds more")
+    finished, last_steps = ends.ends[-1]
+    return (last_steps - steps) / (finished - started), len(ends.ends)
 
 
 def compare_training(sensor: str, args) -> None:
@@ -124,7 +143,7 @@ def compare_training(sensor: str, args) -> None:
                     rate, iterations = training_steps_per_second(trainer)
             figures.setdefault(workers, []).append(rate)
             print(f"{sensor:20s} run {repeat} {label:11s} {rate:9.1f} training env steps/s "
-                  f"({iterations} iterations in {args.training_seconds:g} s)", flush=True)
+                  f"({iterations} whole iterations in a {args.training_seconds:g} s job)", flush=True)
     base = median(figures["in-process"])
     for workers in args.workers:
         print(f"{sensor:20s} training: ray x{workers} / in-process = {median(figures[workers]) / base:.2f} "
