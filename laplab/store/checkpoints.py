@@ -3,8 +3,9 @@
 Each checkpoint is one file `model/<iteration>_Step-<steps>.ckpt` (the name rl_coach gives its
 TensorFlow checkpoints in deepracer-for-cloud; `steps` = environment steps so far). Its bytes are
 opaque here: the caller passes bytes, or a callable writing to a path (`lambda p:
-torch.save(state, p)`), so this module needs no torch. The newest `keep_last` checkpoints plus
-the best one are kept; older ones are deleted after each save.
+torch.save(state, p)`), so this module needs no torch. As in the simapp (`NUM_MODELS_TO_KEEP`),
+`keep` checkpoints are kept in all, the best among them: the newest `keep`, or the best and the
+newest `keep - 1` when the best is older (the last is always kept); the rest are deleted after each save.
 
 A checkpoint file holds the networks' weights. What resuming needs besides (optimizer state, target
 networks) is written beside the *last* checkpoint only, as `model/<iteration>_Step-<steps>.ckpt.resume`
@@ -41,15 +42,15 @@ RESUME_SUFFIX = ".resume"
 
 @dataclass(frozen=True)
 class CheckpointParams:
-    """keep_last: newest checkpoints kept besides the best; best_model_metric: 'progress' or
-    'reward' (higher is better) or 'laptime' (lower is better)."""
+    """keep: checkpoints kept in all, the best among them (the simapp's NUM_MODELS_TO_KEEP = 4);
+    best_model_metric: 'progress' or 'reward' (higher is better) or 'laptime' (lower is better)."""
 
-    keep_last: int = 4
+    keep: int = 4
     best_model_metric: str = "progress"
 
     def __post_init__(self) -> None:
-        if isinstance(self.keep_last, bool) or not isinstance(self.keep_last, int) or self.keep_last < 1:
-            raise ValueError(f"CheckpointParams.keep_last must be an int >= 1, got {self.keep_last!r}")
+        if isinstance(self.keep, bool) or not isinstance(self.keep, int) or self.keep < 1:
+            raise ValueError(f"CheckpointParams.keep must be an int >= 1, got {self.keep!r}")
         if self.best_model_metric not in BEST_MODEL_METRICS:
             raise ValueError(f"CheckpointParams.best_model_metric must be one of {BEST_MODEL_METRICS}, "
                              f"got {self.best_model_metric!r}")
@@ -200,7 +201,10 @@ class CheckpointStore:
     def _prune(self) -> None:
         names = self.names()
         best, last = self._records()
-        keep = set(names[-self.params.keep_last:]) | ({best.name} if best is not None else set())
+        newest = names[-self.params.keep:]
+        if best is not None and best.name not in newest and self.params.keep > 1:
+            newest = names[-(self.params.keep - 1):]  # the best takes one of the places
+        keep = set(newest) | ({best.name} if best is not None else set())
         for name in names:
             if name not in keep:
                 (self.folder.model_dir / name).unlink(missing_ok=True)

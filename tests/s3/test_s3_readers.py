@@ -101,7 +101,7 @@ def test_checkpoint_data_is_uploaded_before_the_index_that_names_it(published, t
     sync = FolderSync(remote, "m1-copy", copy, delete=True)
     sync.sync()
     from laplab.store.checkpoints import CheckpointParams, CheckpointStore
-    checkpoints = CheckpointStore(copy, CheckpointParams(keep_last=1))
+    checkpoints = CheckpointStore(copy, CheckpointParams(keep=1))
     checkpoints.save(b"new weights", iteration=9, steps=999, metric=100.0)
     sync.sync()
     assert store.index_writes == 2 and not store.problems
@@ -167,7 +167,7 @@ def test_background_publication_keeps_the_order_while_checkpoints_are_saved_and_
     folder = ModelFolder(tmp_path / "bg").create()
     folder.write_laplab_config({"track": "oval"})
     sync = FolderSync(RemoteModels(store), "bg", folder, delete=True, background=True)
-    checkpoints = CheckpointStore(folder, CheckpointParams(keep_last=2))
+    checkpoints = CheckpointStore(folder, CheckpointParams(keep=2))
     for iteration in range(12):
         checkpoints.save(bytes(200_000), iteration=iteration, steps=10 * iteration, metric=float(iteration % 5))
         sync.on_checkpoint(None)

@@ -10,13 +10,28 @@ def _store(tmp_path, **params):
     return CheckpointStore(ModelFolder(tmp_path / "m"), CheckpointParams(**params))
 
 
-def test_keeps_the_last_four_plus_the_best(tmp_path):
+def test_keeps_four_in_all_the_best_among_them(tmp_path):
+    """As the simapp's NUM_MODELS_TO_KEEP: an older best takes one of the 4 places; a best among
+    the newest 4 takes none."""
     store = _store(tmp_path)
     metrics = [10.0, 80.0, 20.0, 30.0, 40.0, 50.0, 60.0]
     for iteration, metric in enumerate(metrics):
         store.save(f"weights {iteration}".encode(), iteration=iteration, steps=1000 * iteration, metric=metric)
-    assert store.names() == ["1_Step-1000.ckpt", "3_Step-3000.ckpt", "4_Step-4000.ckpt",
-                             "5_Step-5000.ckpt", "6_Step-6000.ckpt"]
+    assert store.names() == ["1_Step-1000.ckpt", "4_Step-4000.ckpt", "5_Step-5000.ckpt", "6_Step-6000.ckpt"]
+    store.save(b"weights 7", iteration=7, steps=7000, metric=90.0)
+    assert store.names() == ["4_Step-4000.ckpt", "5_Step-5000.ckpt", "6_Step-6000.ckpt", "7_Step-7000.ckpt"]
+    store.save(b"weights 8", iteration=8, steps=8000, metric=5.0)
+    assert store.names() == ["5_Step-5000.ckpt", "6_Step-6000.ckpt", "7_Step-7000.ckpt", "8_Step-8000.ckpt"]
+    store.save(b"weights 9", iteration=9, steps=9000, metric=5.0)
+    assert store.names() == ["6_Step-6000.ckpt", "7_Step-7000.ckpt", "8_Step-8000.ckpt", "9_Step-9000.ckpt"]
+    store.save(b"weights 10", iteration=10, steps=10000, metric=5.0)
+    assert store.names() == ["7_Step-7000.ckpt", "8_Step-8000.ckpt", "9_Step-9000.ckpt", "10_Step-10000.ckpt"]
+    store.save(b"weights 11", iteration=11, steps=11000, metric=5.0)
+    assert store.names() == ["7_Step-7000.ckpt", "9_Step-9000.ckpt", "10_Step-10000.ckpt", "11_Step-11000.ckpt"]
+    assert store.best().name == "7_Step-7000.ckpt"
+    store = _store(tmp_path / "again")
+    for iteration, metric in enumerate(metrics):
+        store.save(f"weights {iteration}".encode(), iteration=iteration, steps=1000 * iteration, metric=metric)
     assert store.resolve("best").read_bytes() == b"weights 1"
     assert store.resolve("last").name == "6_Step-6000.ckpt"
     assert store.resolve("4_Step-4000.ckpt").read_bytes() == b"weights 4"
@@ -39,7 +54,7 @@ def test_ties_go_to_the_newer_and_laptime_prefers_lower(tmp_path):
 
 
 def test_metric_recorded_after_saving_can_make_a_checkpoint_best(tmp_path):
-    store = _store(tmp_path, keep_last=1)
+    store = _store(tmp_path, keep=1)
     store.save(b"first", iteration=0, steps=10)
     assert store.best().name == "0_Step-10.ckpt" and store.best().avg_eval_metric is None
     store.record_metric("0_Step-10.ckpt", 40.0)
@@ -78,8 +93,8 @@ def test_errors_are_clear(tmp_path):
         store.save("text", iteration=1, steps=1)
     with pytest.raises(ValueError, match="steps must be an int"):
         checkpoint_name(1, -5)
-    with pytest.raises(ValueError, match="keep_last"):
-        CheckpointParams(keep_last=0)
+    with pytest.raises(ValueError, match="keep"):
+        CheckpointParams(keep=0)
 
 
 def test_lap_time_breaks_ties_among_checkpoints_that_lap(tmp_path):
