@@ -66,7 +66,12 @@ def read_resume_state(folder: ModelFolder) -> tuple[str, dict]:
     with handle:
         try:
             import torch
-            resume = torch.load(handle, map_location="cpu", weights_only=True)
+
+            from laplab.train.resume_codec import unpack_state
+            resume = unpack_state(torch.load(handle, map_location="cpu", weights_only=True))
+        except ImportError as exc:
+            raise CorruptFileError(f"resume state {str(resume_path)!r} needs the {exc.name!r} package to be read: "
+                                   f'install laplab\'s train extra (pip install -e ".[train]").') from None
         except Exception as exc:  # noqa: BLE001 - a damaged file: say which, resume from the weights
             raise CorruptFileError(f"resume state {str(resume_path)!r} is damaged ({type(exc).__name__}); delete it "
                                    f"to resume from the checkpoint's weights with fresh optimizers.") from None

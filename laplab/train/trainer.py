@@ -77,9 +77,11 @@ def checkpoint_writer(learner: Learner, iteration: int, env_steps: int, episodes
 def resume_writer(learner: Learner):
     """What ``--resume`` needs beyond a checkpoint's weights (optimizers, target networks), as a
     function writing it to a path; kept for the last checkpoint only (:func:`merge_resume_state`)."""
+    from laplab.train.resume_codec import pack_state
+
     weights = learner.weights_state()
     extra = {key: value for key, value in learner.state_dict().items() if key not in weights}
-    return lambda path: torch.save({"learner": extra}, path)
+    return lambda path: torch.save({"learner": pack_state(extra)}, path)  # Adam's moments, compressed exactly
 
 
 def merge_resume_state(state: dict, resume: dict | None) -> dict:

@@ -133,7 +133,12 @@ def test_only_the_last_checkpoint_carries_the_resume_state(laplab_home):
     assert set(extra) == {"optimizer"}
     resumed = resume_training("compact", max_episodes=8)
     optimizer = resumed.learner.optimizer.state_dict()
-    assert optimizer["state"]  # Adam's moments came back from the resume state
+    assert optimizer["state"]  # Adam's moments came back from the resume state, bit for bit
+    saved = trainer.learner.optimizer.state_dict()["state"]
+    assert saved.keys() == optimizer["state"].keys()
+    for index, moments in saved.items():
+        for key, value in moments.items():
+            assert torch.equal(optimizer["state"][index][key], value), (index, key)
     resumed.run()
     resumed.lock.release()
     assert resumed.iteration == 4
