@@ -70,15 +70,10 @@ def steps_per_second(trainer, iterations: int) -> tuple[float, float, dict[str, 
     iteration of each part of the collector's ``last_timing`` with workers, and ``per_step``: ms of
     wall time per batched simulator step, which the episodes' random lengths disturb less than env
     steps/s)."""
-    def collect():  # as the trainer's loop does: the episode count moves the workers' round-robin starts on
-        batch = trainer._collect(lambda: False, time.perf_counter())
-        trainer.episodes += len(batch.status)
-        return batch
-
     warm_up(trainer)
     steps, batched, driving, started, parts = 0, 0, 0.0, time.perf_counter(), {}
     for _ in range(iterations):
-        batch = collect()
+        batch = collect(trainer)
         steps += batch.env_steps
         batched += batch.valid.shape[0]
         driving += batch.wall_seconds
@@ -89,12 +84,19 @@ def steps_per_second(trainer, iterations: int) -> tuple[float, float, dict[str, 
     return steps / wall, driving / wall, parts
 
 
+def collect(trainer):
+    """One collection step, as the trainer's loop runs it: the episode count moves the workers'
+    round-robin starts on."""
+    batch = trainer._collect(lambda: False, time.perf_counter())
+    trainer.episodes += len(batch.status)
+    return batch
+
+
 def warm_up(trainer) -> None:
     """Two collections, not timed: JIT compilation, first frames, the allocator (a first iteration is
-    not enough for camera); the episode count moves on as the trainer's loop moves it."""
+    not enough for camera)."""
     for _ in range(2):
-        batch = trainer._collect(lambda: False, time.perf_counter())
-        trainer.episodes += len(batch.status)
+        collect(trainer)
 
 
 class IterationEnds:
@@ -133,7 +135,7 @@ def compare_training(sensor: str, args) -> None:
     for repeat in range(args.repeats):
         for workers in ["in-process", *args.workers]:
             label = workers if workers == "in-process" else f"ray x{workers}"
-            name = f"train-{repeat}-{str(workers).replace(' ', '')}-{sensor.lower().replace('_', '-')}"
+            name = f"train-{repeat}-{workers}-{sensor.lower().replace('_', '-')}"
             trainer = make_trainer(name, sensor, args.episodes, 1 if workers == "in-process" else workers,
                                    max_time_s=args.training_seconds)
             if workers == "in-process":

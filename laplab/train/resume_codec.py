@@ -5,9 +5,10 @@ zeros and similar exponents. Each tensor of at least ``MIN_PACKED_ELEMENTS`` flo
 elements is stored as its bytes regrouped by byte position (every element's first byte, then every
 second byte, ...: the exponent bytes line up) and compressed with zstd level 1. On the 2-core host a
 camera SAC critic's resume state went from 49.9 to 27.3 MB in 0.18 s (zlib level 1 on the plain
-bytes: 0.62 of the size in 1.4 s). Tensors on a GPU are packed from a CPU copy and come back on the CPU
-(the optimizer's ``load_state_dict`` moves them to their parameters' device). Decoding gives the same bits back; the file stays a ``torch.save`` file
-of tensors and plain values, read with ``weights_only=True``.
+bytes: 0.62 of the size in 1.4 s). Tensors on a GPU are packed from a CPU copy and come back on the
+CPU (the optimizer's ``load_state_dict`` moves them to their parameters' device). Decoding gives the
+same bits back; the file stays a ``torch.save`` file of tensors and plain values, read with
+``weights_only=True``.
 """
 
 from __future__ import annotations

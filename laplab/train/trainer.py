@@ -26,6 +26,7 @@ from laplab.sim.state import EpisodeParams
 from laplab.track.geometry import Track
 from laplab.train.collect import CollectionAborted, EpisodeBatch, collect_episodes
 from laplab.train.config import TrainConfig
+from laplab.train.resume_codec import pack_state
 from laplab.sim.state import episodes_done_and_steps
 from laplab.train.events import CheckpointReady, IterationEpisodes, IterationReport, PhaseProgress, PosesFrame
 from laplab.vehicle.params import vehicle_preset
@@ -77,8 +78,6 @@ def checkpoint_writer(learner: Learner, iteration: int, env_steps: int, episodes
 def resume_writer(learner: Learner):
     """What ``--resume`` needs beyond a checkpoint's weights (optimizers, target networks), as a
     function writing it to a path; kept for the last checkpoint only (:func:`merge_resume_state`)."""
-    from laplab.train.resume_codec import pack_state
-
     weights = learner.weights_state()
     extra = {key: value for key, value in learner.state_dict().items() if key not in weights}
     return lambda path: torch.save({"learner": pack_state(extra)}, path)  # Adam's moments, compressed exactly
