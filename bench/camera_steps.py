@@ -13,6 +13,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import statistics
 import time
 from dataclasses import replace
@@ -82,8 +83,11 @@ def measure(row: str, repeat: int, precision: str) -> dict:
         step = learner.act(obs)
         import torch
         zeros = torch.zeros(batch)
-        learn_ms = _median_ms(lambda: learner._minibatch_step(obs, step.action, torch.as_tensor(step.log_prob),
-                                                              zeros, zeros), repeat)
+        stream = getattr(learner, "value_stream", None)  # older learners (before session 11) have none
+        with stream() if stream is not None else contextlib.nullcontext(None) as value_side:
+            extra = () if value_side is None else (value_side,)
+            learn_ms = _median_ms(lambda: learner._minibatch_step(obs, step.action, torch.as_tensor(step.log_prob),
+                                                                  zeros, zeros, *extra), repeat)
     return {"collect_ms": collect_ms, "learn_ms": learn_ms, "collect_steps_s": 20 / (collect_ms / 1000),
             "precision": getattr(learner, "precision", "?")}
 

@@ -323,6 +323,11 @@ class ActorCritic(nn.Module):
         distribution, values = self(observations)
         return distribution.log_prob(actions), distribution.entropy(), values
 
+    def evaluate_policy(self, observations: Any, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """-> log_prob (B,), entropy (B,) of stored ``actions`` (the value trunk does not run)."""
+        distribution = self.distribution(observations)
+        return distribution.log_prob(actions), distribution.entropy()
+
     @torch.no_grad()
     def act(self, observations: Any, deterministic: bool = False) -> PolicyStep:
         """Sample (or, deterministic, take the mode of) the policy for B observations."""

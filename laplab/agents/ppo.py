@@ -15,9 +15,10 @@ random action with probability epsilon (decaying linearly from 1 to ``e_greedy_v
 
 from __future__ import annotations
 
+import contextlib
 import os
 from dataclasses import asdict
-from typing import Any, Callable, Mapping, NamedTuple
+from typing import Any, Callable, ContextManager, Mapping, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -27,7 +28,9 @@ from laplab.agents.hyperparameters import Hyperparameters
 from laplab.agents.losses import (clipped_surrogate_loss, compute_gae, entropy_bonus,
                                   policy_change_stats, value_loss)
 from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, ActorCritic, PolicyStep,
-                                    action_spec_from, observation_to_tensor, set_compute_precision)
+                                    action_spec_from, has_convolutions, observation_to_tensor,
+                                    set_compute_precision)
+from laplab.agents.side_stream import RunOnSide, SideStream, run_now
 
 CLIP_EPSILON = 0.2
 GAE_LAMBDA = 0.95
@@ -156,6 +159,8 @@ class PPOLearner:
         self.rng = np.random.default_rng(seed)
         self.env_steps = 0  # environment steps acted with exploration (drives epsilon)
         self.iterations = 0
+        self._split_step = self.model.value_trunk is not None and has_convolutions(self.model)
+        self._value_stream = SideStream("laplab-ppo-value")
 
     @property
     def epsilon(self) -> float:
@@ -261,20 +266,21 @@ class PPOLearner:
         total = hp.num_epochs * -(-rows.size // hp.batch_size)
         stopped = False
         self.model.train()
-        for _ in range(hp.num_epochs):
-            if stopped:
-                break
-            order = self.rng.permutation(rows.size)
-            for start in range(0, rows.size, hp.batch_size):
-                if should_stop is not None and should_stop():
-                    stopped = True
+        with self.value_stream() as value_side:
+            for _ in range(hp.num_epochs):
+                if stopped:
                     break
-                index = order[start:start + hp.batch_size]
-                totals += self._minibatch_step(_take(observations, index), actions[index],
-                                               old_log_probs[index], advantages[index], returns[index])
-                minibatches += 1
-                if on_progress is not None:
-                    on_progress(minibatches, total)
+                order = self.rng.permutation(rows.size)
+                for start in range(0, rows.size, hp.batch_size):
+                    if should_stop is not None and should_stop():
+                        stopped = True
+                        break
+                    index = order[start:start + hp.batch_size]
+                    totals += self._minibatch_step(_take(observations, index), actions[index], old_log_probs[index],
+                                                   advantages[index], returns[index], value_side)
+                    minibatches += 1
+                    if on_progress is not None:
+                        on_progress(minibatches, total)
         self.iterations += 1
         means = totals / max(minibatches, 1) if minibatches else np.full(5, np.nan)
         return_variance = float(np.var(returns.numpy()))
@@ -283,19 +289,42 @@ class PPOLearner:
                 "approx_kl": float(means[3]), "clip_fraction": float(means[4]), "explained_variance": explained,
                 "num_steps": int(rows.size), "num_minibatches": minibatches, "epsilon": self.epsilon}
 
+    def value_stream(self) -> ContextManager[RunOnSide]:
+        """Where a minibatch step's value half runs: a second thread with half of torch's threads when
+        the value network has its own camera trunk on the CPU and there are two or more threads (the
+        halves share no parameter; :mod:`laplab.agents.side_stream`), else at once on this thread."""
+        if not self._split_step or self.device.type != "cpu":
+            return contextlib.nullcontext(run_now)
+        return self._value_stream.open()
+
     def _minibatch_step(self, observations: Any, actions: np.ndarray, old_log_probs: torch.Tensor,
-                        advantages: torch.Tensor, returns: torch.Tensor) -> np.ndarray:
-        device = self.device
+                        advantages: torch.Tensor, returns: torch.Tensor,
+                        value_side: RunOnSide = run_now) -> np.ndarray:
+        """One Adam step on the minibatch's loss: clipped surrogate + value loss + entropy bonus. With
+        a camera trunk of its own, ``value_side`` runs the value network's forward and backward pass
+        (the gradient of the summed loss splits exactly between the two networks)."""
+        device, hp = self.device, self.hyperparameters
         obs = observation_to_tensor(observations, device)
         action_tensor = torch.as_tensor(actions, device=device)
         action_tensor = action_tensor.long() if self.action_spec.discrete else action_tensor.float()
         old_log_probs, advantages, returns = (x.to(device) for x in (old_log_probs, advantages, returns))
-        log_probs, entropy, predicted = self.model.evaluate(obs, action_tensor)
-        policy_loss = clipped_surrogate_loss(log_probs, old_log_probs, advantages, CLIP_EPSILON)
-        critic_loss = value_loss(predicted, returns, self.hyperparameters.loss_type)
-        loss = policy_loss + critic_loss + entropy_bonus(entropy, self.hyperparameters.beta_entropy)
         self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
+        if not self._split_step:  # one graph (vector networks: too small for two streams to pay)
+            log_probs, entropy, predicted = self.model.evaluate(obs, action_tensor)
+            policy_loss = clipped_surrogate_loss(log_probs, old_log_probs, advantages, CLIP_EPSILON)
+            critic_loss = value_loss(predicted, returns, hp.loss_type)
+            (policy_loss + critic_loss + entropy_bonus(entropy, hp.beta_entropy)).backward()
+        else:
+            def value_half() -> torch.Tensor:
+                loss = value_loss(self.model.value(obs), returns, hp.loss_type)
+                loss.backward()
+                return loss.detach()
+
+            value_done = value_side(value_half)
+            log_probs, entropy = self.model.evaluate_policy(obs, action_tensor)
+            policy_loss = clipped_surrogate_loss(log_probs, old_log_probs, advantages, CLIP_EPSILON)
+            (policy_loss + entropy_bonus(entropy, hp.beta_entropy)).backward()
+            critic_loss = value_done.result()
         self.optimizer.step()
         approx_kl, clip_fraction = policy_change_stats(log_probs, old_log_probs, CLIP_EPSILON)
         return np.array([policy_loss.item(), critic_loss.item(), entropy.mean().item(), approx_kl, clip_fraction])

@@ -14,9 +14,8 @@ keeps DeepRacer's shape (trunk, then the mean and log-std heads): the car and th
 network. Vector models (STATE, lidar) keep separate actor and critic trunks, as rl_coach builds them.
 
 With separate trunks, a gradient step runs the critic's half (its trunk passes, backward, optimizer
-step) on a second thread while the calling thread runs the actor's half, each with half of torch's
-intra-op threads: two independent streams of work keep two cores busy better than two threads
-meeting at the end of every operation, most of all on a shared machine.
+step) on a second thread while the calling thread runs the actor's half
+(:mod:`laplab.agents.side_stream`).
 """
 
 from __future__ import annotations
@@ -24,10 +23,8 @@ from __future__ import annotations
 import contextlib
 import copy
 import math
-import os
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict
-from typing import Any, Callable, Iterator, Mapping
+from typing import Any, Callable, Mapping
 
 import gymnasium as gym
 import numpy as np
@@ -41,6 +38,7 @@ from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, PolicyStep, Squ
                                     set_compute_precision, twin_q_from_separate)
 from laplab.agents.ppo import limit_torch_threads
 from laplab.agents.replay import ReplayBatch, ReplayBuffer
+from laplab.agents.side_stream import RunOnSide, SideStream, run_now
 
 
 
@@ -88,7 +86,7 @@ class SACLearner:
         self.buffer = ReplayBuffer(buffer_capacity, observation_space, dim)
         self.rng = np.random.default_rng(seed)
         self.gradient_steps = 0
-        self._side_thread: tuple[int, ThreadPoolExecutor] | None = None  # (process id, pool of one thread)
+        self._critic_stream = SideStream("laplab-sac-critic")
 
     @torch.no_grad()
     def act(self, observations: Any, deterministic: bool = False) -> PolicyStep:
@@ -153,7 +151,7 @@ class SACLearner:
             torch._foreach_copy_(list(self.target_critic.parameters()), list(self.critic.parameters()))
         totals = torch.zeros(4, dtype=torch.float64)
         done = 0
-        with (contextlib.nullcontext(_run_now) if self.shared_trunk else self._critic_stream()) as critic_side:
+        with (contextlib.nullcontext(run_now) if self.shared_trunk else self._critic_stream.open()) as critic_side:
             for _ in range(num_gradient_steps):
                 if should_stop is not None and should_stop():
                     break
@@ -169,33 +167,7 @@ class SACLearner:
         return {"critic_loss": means[0], "actor_loss": means[1], "q_mean": means[2], "entropy": means[3],
                 "num_gradient_steps": done}
 
-    @contextlib.contextmanager
-    def _critic_stream(self) -> Iterator[Callable[[Callable[[], Any]], Future]]:
-        """A ``run(fn) -> Future`` for the critic's half of the steps made inside: with two or more
-        torch threads, ``fn`` runs on this learner's second thread with half of them (the caller
-        keeps the rest, and gets its thread count back on leaving); with one, it runs at once."""
-        threads = torch.get_num_threads()
-        if threads < 2:
-            yield _run_now
-            return
-        side_threads = threads // 2
-        if self._side_thread is None or self._side_thread[0] != os.getpid():  # a forked child has no thread
-            self._side_thread = (os.getpid(), ThreadPoolExecutor(1, thread_name_prefix="laplab-sac-critic"))
-        pool = self._side_thread[1]
-
-        def on_side(fn: Callable[[], Any]) -> Any:
-            if torch.get_num_threads() != side_threads:  # a thread's own count (OpenMP), set once
-                torch.set_num_threads(side_threads)
-            return fn()
-
-        torch.set_num_threads(threads - side_threads)
-        try:
-            yield lambda fn: pool.submit(on_side, fn)
-        finally:
-            pool.submit(lambda: None).result()  # after a failure, nothing of this update still runs
-            torch.set_num_threads(threads)
-
-    def _gradient_step(self, batch: ReplayBatch, critic_side: Callable[[Callable[[], Any]], Future]) -> torch.Tensor:
+    def _gradient_step(self, batch: ReplayBatch, critic_side: RunOnSide) -> torch.Tensor:
         """One step of both networks on one minibatch: the critic towards the soft Bellman target of
         the target critic, the actor against the critic as it was before this step (rl_coach's order).
         The critic's trunk runs once for both Q heads and both losses. ``critic_side`` runs the
@@ -331,16 +303,6 @@ class SACLearner:
             self.actor_optimizer.load_state_dict(state["actor_optimizer"])
             self.critic_optimizer.load_state_dict(state["critic_optimizer"])
         self.gradient_steps = int(state.get("gradient_steps", 0))
-
-
-def _run_now(fn: Callable[[], Any]) -> Future:
-    """``fn()`` run at once, as a finished ``Future``."""
-    future: Future = Future()
-    try:
-        future.set_result(fn())
-    except BaseException as error:  # noqa: BLE001 - handed to whoever reads the result
-        future.set_exception(error)
-    return future
 
 
 def _step_stats(critic_loss: torch.Tensor, actor_loss: torch.Tensor, q1: torch.Tensor,
