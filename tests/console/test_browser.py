@@ -73,6 +73,8 @@ def test_console_in_chromium(console, page, tmp_path):
     page.wait_for_function("+document.querySelector('#chart').dataset.points >= 1", timeout=300_000)
     page.wait_for_function(f"document.querySelector('#live').dataset.lastCar !== {first_car!r}", timeout=120_000)
     assert page.get_attribute("#status", "data-status") == "training"
+    page.wait_for_function("document.querySelector('#stat-phase').textContent.startsWith('iteration ')",
+                           timeout=60_000)  # what the job does now: collecting, learning, evaluating
     shot(page, tmp_path, "04-training")
     page.click("#stop")
     page.wait_for_selector("#status[data-status='ready']", timeout=240_000)
@@ -86,6 +88,9 @@ def test_console_in_chromium(console, page, tmp_path):
         page.wait_for_selector("[data-export]")
     page.wait_for_selector("[data-evaluation] .status[data-status='done']", timeout=300_000)
     assert page.locator("[data-evaluation] table tbody tr").count() == 1
+    headline = page.locator("[data-evaluation] h3").inner_text()  # one trial: no average of 3 laps to show
+    assert "average of 3" not in headline and ("best lap" in headline or "no lap completed" in headline), headline
+    assert page.inner_text("#stat-phase") == "–"  # the stopped job's last phase is not shown as "now"
     shot(page, tmp_path, "05-model-evaluated")
 
     with page.expect_download(timeout=180_000) as download:

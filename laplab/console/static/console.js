@@ -267,6 +267,7 @@ const Console = (() => {
       $("#stop").hidden = !["training", "queued"].includes(status); $("#resume").hidden = status !== "interrupted";
       for (const id of ["#evaluate", "#clone", "#download-tar", "#download-onnx", "#export-car", "#export-console"]) { const n = $(id); n.classList.toggle("disabled", active); if (n.tagName === "BUTTON") n.disabled = active; }
       if (progress !== undefined) $("#stat-progress").textContent = `${fmt(progress, 0)} %`;
+      if (!active) $("#stat-phase").textContent = "–";  // no job runs: no phase to show
     };
     const renderRows = () => {
       drawChart(chart, rows); chart.dataset.points = String(rows.length);
@@ -316,13 +317,18 @@ const Console = (() => {
     events.addEventListener("poses", ev => live.update(JSON.parse(ev.data)));
     const phases = {collect: ["collecting", "episodes"], learn: ["learning", "gradient steps"], evaluate: ["evaluating", "laps"]};
     events.addEventListener("phase", ev => { const p = JSON.parse(ev.data), [verb, unit] = phases[p.phase] || [p.phase, ""];
+      if (!["training", "queued", "stopping"].includes($("#status").dataset.status)) return;  // late news of an ended job
       $("#stat-phase").textContent = `iteration ${p.iteration}: ${verb}` + (p.total ? ` ${p.done}/${p.total} ${unit}` : ""); });
     $("#stop").addEventListener("click", async () => { try { await api("POST", `/api/models/${name}/stop`); toast("stopping: the model keeps its last checkpoint"); refresh(); } catch (e) { toast(e.message); } });
     $("#resume").addEventListener("click", async () => { try { await api("POST", `/api/models/${name}/resume`, {}); toast("resumed"); refresh(); } catch (e) { toast(e.message); } });
+    // The league's figure when 3 trials in a row finished, else the best lap, else the completion.
+    const evaluationHeadline = s => !s ? "" : s.average_3 != null ? ` · average of 3 laps ${lap(s.average_3)}`
+      : s.best_lap != null ? ` · best lap ${lap(s.best_lap)} (${s.completed} of ${s.trials} trials completed)`
+      : ` · no lap completed (${fmt(s.average_completion, 1)} % on average)`;
     async function loadEvaluations() {
       const list = await api("GET", `/api/models/${name}/evaluations`);
       $("#evaluations").replaceChildren(...list.slice().reverse().map(ev => el("div", {class: "evaluation", "data-evaluation": ev.id},
-        el("h3", {}, `Evaluation ${ev.id} `, badge(ev.status), ev.track ? ` on ${ev.track}` : "", ev.summary ? ` · average of 3 laps ${lap(ev.summary.average_3)}` : ""),
+        el("h3", {}, `Evaluation ${ev.id} `, badge(ev.status), ev.track ? ` on ${ev.track}` : "", evaluationHeadline(ev.summary)),
         ev.error ? el("p", {class: "field-error"}, ev.error) : "",
         ev.trials.length ? el("table", {class: "grid compact"}, el("thead", {}, el("tr", {}, ...["Trial", "Time", "Progress %", "Status", "Off-track", "Gap to optimal"].map(h => el("th", {class: h === "Status" || h === "Trial" ? "" : "num"}, h)))),
           el("tbody", {}, ...ev.trials.map((t, i) => el("tr", {}, el("td", {}, i + 1), el("td", {class: "num"}, lap(t.lap_time)), el("td", {class: "num"}, fmt(t.progress, 1)),
@@ -370,7 +376,7 @@ const Console = (() => {
         el("table", {class: "grid"}, el("thead", {}, el("tr", {}, ...["Rank", "Racer", "Model", "Average of 3 laps", "Best lap", "Completion", "Off-track", "Gap to optimal"].map((h, i) => el("th", {class: i > 2 ? "num" : ""}, h)))),
           el("tbody", {}, ...b.entries.map(e => el("tr", {}, el("td", {}, e.rank), el("td", {}, e.user || "–"), el("td", {}, e.model), el("td", {class: "num"}, lap(e.average_3)),
             el("td", {class: "num"}, lap(e.best_lap)), el("td", {class: "num"}, `${fmt(e.completion, 1)} %`), el("td", {class: "num"}, e.off_track_count),
-            el("td", {class: "num"}, e.gap_to_optimal ? `${fmt(100 * (e.gap_to_optimal - 1), 1)} %` : "–"))))))) : [el("p", {class: "card empty"}, "No evaluations yet: evaluate a model to enter the leaderboard.")]));
+            el("td", {class: "num"}, e.gap_to_optimal ? `${e.gap_to_optimal >= 1 ? "+" : ""}${fmt(100 * (e.gap_to_optimal - 1), 1)} %` : "–"))))))) : [el("p", {class: "card empty"}, "No evaluations yet: evaluate a model to enter the leaderboard.")]));
     };
     select.addEventListener("change", load); load();
   }
