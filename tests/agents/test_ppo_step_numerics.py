@@ -58,45 +58,37 @@ def _reference_update(model, optimizer, rollout: Rollout, hp: Hyperparameters, o
 
 
 @pytest.mark.parametrize("threads", [1, 2])
-def test_camera_update_matches_the_one_graph_reference(threads):
-    previous_threads = torch.get_num_threads()
+def test_camera_update_matches_the_one_graph_reference(threads, restore_torch_threads):
     hp = Hyperparameters(batch_size=32, num_epochs=3)
-    try:
-        learner = PPOLearner(CAMERA, CONTINUOUS, hp, seed=3, num_threads=threads)
-        assert learner.model.value_trunk is not None
-        rollout = _rollout(learner, np.random.default_rng(0))
-        model = copy.deepcopy(learner.model)
-        optimizer = torch.optim.Adam(model.parameters(), lr=hp.lr, eps=ADAM_EPSILON)
-        expected = _reference_update(model, optimizer, rollout, hp, np.random.default_rng(11))
-        learner.rng = np.random.default_rng(11)
-        stats = learner.update(rollout)
-        assert stats["num_minibatches"] == 3 * 2
-        got = (stats["policy_loss"], stats["value_loss"], stats["entropy"])
-        np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-5)
-        for (key, value), reference in zip(learner.model.state_dict().items(), model.state_dict().values()):
-            torch.testing.assert_close(value, reference, rtol=1e-4, atol=1e-5, msg=key)
-        assert torch.get_num_threads() == threads  # the update leaves torch's thread count as it found it
-    finally:
-        torch.set_num_threads(previous_threads)
+    learner = PPOLearner(CAMERA, CONTINUOUS, hp, seed=3, num_threads=threads)
+    assert learner.model.value_trunk is not None
+    rollout = _rollout(learner, np.random.default_rng(0))
+    model = copy.deepcopy(learner.model)
+    optimizer = torch.optim.Adam(model.parameters(), lr=hp.lr, eps=ADAM_EPSILON)
+    expected = _reference_update(model, optimizer, rollout, hp, np.random.default_rng(11))
+    learner.rng = np.random.default_rng(11)
+    stats = learner.update(rollout)
+    assert stats["num_minibatches"] == 3 * 2
+    got = (stats["policy_loss"], stats["value_loss"], stats["entropy"])
+    np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-5)
+    for (key, value), reference in zip(learner.model.state_dict().items(), model.state_dict().values()):
+        torch.testing.assert_close(value, reference, rtol=1e-4, atol=1e-5, msg=key)
+    assert torch.get_num_threads() == threads  # the update leaves torch's thread count as it found it
 
 
-def test_a_failure_on_the_value_thread_reaches_the_caller_and_restores_the_threads():
-    previous_threads = torch.get_num_threads()
-    try:
-        learner = PPOLearner(CAMERA, CONTINUOUS, Hyperparameters(batch_size=32, num_epochs=3), seed=0, num_threads=2)
-        rollout = _rollout(learner, np.random.default_rng(1))
-        before = [p.detach().clone() for p in learner.model.parameters()]
+def test_a_failure_on_the_value_thread_reaches_the_caller_and_restores_the_threads(restore_torch_threads):
+    learner = PPOLearner(CAMERA, CONTINUOUS, Hyperparameters(batch_size=32, num_epochs=3), seed=0, num_threads=2)
+    rollout = _rollout(learner, np.random.default_rng(1))
+    before = [p.detach().clone() for p in learner.model.parameters()]
 
-        def broken(*_):
-            raise RuntimeError("broken value trunk")
+    def broken(*_):
+        raise RuntimeError("broken value trunk")
 
-        hook = learner.model.value_trunk.register_forward_hook(broken)
-        with pytest.raises(RuntimeError, match="broken value trunk"):
-            learner.update(rollout)
-        assert torch.get_num_threads() == 2
-        assert all(torch.equal(a, b) for a, b in zip(before, learner.model.parameters()))
-        hook.remove()
-        assert learner.update(rollout)["num_minibatches"] == 6  # the thread still serves the next update
-        assert copy.deepcopy(learner).update(rollout)["num_minibatches"] == 6  # a copy makes its own thread
-    finally:
-        torch.set_num_threads(previous_threads)
+    hook = learner.model.value_trunk.register_forward_hook(broken)
+    with pytest.raises(RuntimeError, match="broken value trunk"):
+        learner.update(rollout)
+    assert torch.get_num_threads() == 2
+    assert all(torch.equal(a, b) for a, b in zip(before, learner.model.parameters()))
+    hook.remove()
+    assert learner.update(rollout)["num_minibatches"] == 6  # the thread still serves the next update
+    assert copy.deepcopy(learner).update(rollout)["num_minibatches"] == 6  # a copy makes its own thread

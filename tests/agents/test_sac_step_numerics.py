@@ -74,66 +74,58 @@ def _reference_shared_step(actor, critic, target_critic, actor_optimizer, critic
 
 @pytest.mark.parametrize("shared", [False, True], ids=["separate-trunks", "shared-trunk"])
 @pytest.mark.parametrize("threads", [1, 2])
-def test_camera_gradient_steps_match_the_sequential_reference(threads, shared):
-    previous_threads = torch.get_num_threads()
+def test_camera_gradient_steps_match_the_sequential_reference(threads, shared, restore_torch_threads):
     hp = Hyperparameters(batch_size=32)
-    try:
-        learner = SACLearner(CAMERA, CONTINUOUS, hp, seed=3, num_threads=threads, buffer_capacity=200,
-                             shared_trunk=shared)
-        assert (learner.actor.trunk is learner.critic.trunk) == shared
-        rng = np.random.default_rng(0)
-        frames = rng.integers(0, 256, (80, *CAMERA.shape), dtype=np.uint8)
-        learner.observe(frames[:40], rng.uniform(-1, 1, (40, 2)).astype(np.float32),
-                        rng.normal(size=40).astype(np.float32), frames[40:], (rng.random(40) < 0.2).astype(np.float32))
-        actor, critic = copy.deepcopy(learner.actor), copy.deepcopy(learner.critic)
-        target_critic = copy.deepcopy(learner.target_critic)
-        if shared:
-            actor.trunk = critic.trunk
-        trained = [*actor.mean.parameters(), *actor.log_std.parameters()] if shared else actor.parameters()
-        actor_optimizer = torch.optim.Adam(trained, lr=hp.lr)
-        reference_step = _reference_shared_step if shared else _reference_step
-        critic_optimizer = torch.optim.Adam(critic.parameters(), lr=hp.lr)
-        sampler = np.random.default_rng(7)
-        learner.rng = np.random.default_rng(7)
-        torch.manual_seed(100)
-        target_critic.load_state_dict(critic.state_dict())  # the update's target: the critic as it starts
-        expected = np.mean([reference_step(actor, critic, target_critic, actor_optimizer, critic_optimizer,
-                                           learner.buffer.sample(hp.batch_size, sampler), hp)
-                            for _ in range(STEPS)], axis=0)
-        torch.manual_seed(100)
-        stats = learner.update(STEPS)
-        got = (stats["critic_loss"], stats["actor_loss"], stats["q_mean"], stats["entropy"])
-        np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-5)
-        for name, mine, theirs in (("actor", learner.actor, actor), ("critic", learner.critic, critic),
-                                   ("target", learner.target_critic, target_critic)):
-            for (key, value), reference in zip(mine.state_dict().items(), theirs.state_dict().values()):
-                torch.testing.assert_close(value, reference, rtol=1e-4, atol=1e-5, msg=f"{name}.{key}")
-        assert torch.get_num_threads() == threads  # the step leaves torch's thread count as it found it
-    finally:
-        torch.set_num_threads(previous_threads)
+    learner = SACLearner(CAMERA, CONTINUOUS, hp, seed=3, num_threads=threads, buffer_capacity=200,
+                         shared_trunk=shared)
+    assert (learner.actor.trunk is learner.critic.trunk) == shared
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, 256, (80, *CAMERA.shape), dtype=np.uint8)
+    learner.observe(frames[:40], rng.uniform(-1, 1, (40, 2)).astype(np.float32),
+                    rng.normal(size=40).astype(np.float32), frames[40:], (rng.random(40) < 0.2).astype(np.float32))
+    actor, critic = copy.deepcopy(learner.actor), copy.deepcopy(learner.critic)
+    target_critic = copy.deepcopy(learner.target_critic)
+    if shared:
+        actor.trunk = critic.trunk
+    trained = [*actor.mean.parameters(), *actor.log_std.parameters()] if shared else actor.parameters()
+    actor_optimizer = torch.optim.Adam(trained, lr=hp.lr)
+    reference_step = _reference_shared_step if shared else _reference_step
+    critic_optimizer = torch.optim.Adam(critic.parameters(), lr=hp.lr)
+    sampler = np.random.default_rng(7)
+    learner.rng = np.random.default_rng(7)
+    torch.manual_seed(100)
+    target_critic.load_state_dict(critic.state_dict())  # the update's target: the critic as it starts
+    expected = np.mean([reference_step(actor, critic, target_critic, actor_optimizer, critic_optimizer,
+                                       learner.buffer.sample(hp.batch_size, sampler), hp)
+                        for _ in range(STEPS)], axis=0)
+    torch.manual_seed(100)
+    stats = learner.update(STEPS)
+    got = (stats["critic_loss"], stats["actor_loss"], stats["q_mean"], stats["entropy"])
+    np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-5)
+    for name, mine, theirs in (("actor", learner.actor, actor), ("critic", learner.critic, critic),
+                               ("target", learner.target_critic, target_critic)):
+        for (key, value), reference in zip(mine.state_dict().items(), theirs.state_dict().values()):
+            torch.testing.assert_close(value, reference, rtol=1e-4, atol=1e-5, msg=f"{name}.{key}")
+    assert torch.get_num_threads() == threads  # the step leaves torch's thread count as it found it
 
 
-def test_a_failure_on_the_critic_thread_reaches_the_caller_and_restores_the_threads():
-    previous_threads = torch.get_num_threads()
-    try:
-        learner = SACLearner(CAMERA, CONTINUOUS, Hyperparameters(batch_size=32), seed=0, num_threads=2,
-                             buffer_capacity=100, shared_trunk=False)
-        frames = np.zeros((40, *CAMERA.shape), np.uint8)
-        learner.observe(frames[:20], np.zeros((20, 2), np.float32), np.zeros(20, np.float32), frames[20:],
-                        np.zeros(20, np.float32))
-        learner.observe(frames[:20], np.zeros((20, 2), np.float32), np.zeros(20, np.float32), frames[20:],
-                        np.zeros(20, np.float32))
-        critic_before = [p.detach().clone() for p in learner.critic.parameters()]
+def test_a_failure_on_the_critic_thread_reaches_the_caller_and_restores_the_threads(restore_torch_threads):
+    learner = SACLearner(CAMERA, CONTINUOUS, Hyperparameters(batch_size=32), seed=0, num_threads=2,
+                         buffer_capacity=100, shared_trunk=False)
+    frames = np.zeros((40, *CAMERA.shape), np.uint8)
+    learner.observe(frames[:20], np.zeros((20, 2), np.float32), np.zeros(20, np.float32), frames[20:],
+                    np.zeros(20, np.float32))
+    learner.observe(frames[:20], np.zeros((20, 2), np.float32), np.zeros(20, np.float32), frames[20:],
+                    np.zeros(20, np.float32))
+    critic_before = [p.detach().clone() for p in learner.critic.parameters()]
 
-        def broken(*_):
-            raise RuntimeError("broken critic trunk")
+    def broken(*_):
+        raise RuntimeError("broken critic trunk")
 
-        hook = learner.critic.trunk.register_forward_hook(broken)
-        with pytest.raises(RuntimeError, match="broken critic trunk"):
-            learner.update(2)
-        assert torch.get_num_threads() == 2 and learner.gradient_steps == 0
-        assert all(torch.equal(a, b) for a, b in zip(critic_before, learner.critic.parameters()))
-        hook.remove()
-        assert learner.update(1)["num_gradient_steps"] == 1  # the thread still serves the next update
-    finally:
-        torch.set_num_threads(previous_threads)
+    hook = learner.critic.trunk.register_forward_hook(broken)
+    with pytest.raises(RuntimeError, match="broken critic trunk"):
+        learner.update(2)
+    assert torch.get_num_threads() == 2 and learner.gradient_steps == 0
+    assert all(torch.equal(a, b) for a, b in zip(critic_before, learner.critic.parameters()))
+    hook.remove()
+    assert learner.update(1)["num_gradient_steps"] == 1  # the thread still serves the next update
