@@ -178,13 +178,18 @@ def load_hyperparameters(path: str | Path) -> Hyperparameters:
         text = path.read_text(encoding="utf-8")
     except OSError as error:
         raise HyperparameterError(f"{path}: cannot read the hyperparameters file ({error}).") from None
+    return parse_hyperparameters(text, str(path))
+
+
+def parse_hyperparameters(text: str, source: str) -> Hyperparameters:
+    """Read and validate hyperparameters from JSON ``text``; errors name ``source`` (a file, an option)."""
     try:
         values = json.loads(text)
     except json.JSONDecodeError as error:
         raise HyperparameterError(
-            f"{path}: not valid JSON at line {error.lineno}, column {error.colno}: {error.msg}."
+            f"{source}: not valid JSON at line {error.lineno}, column {error.colno}: {error.msg}."
         ) from None
-    return from_dict(values, source=str(path))
+    return from_dict(values, source=source)
 
 
 def save_hyperparameters(hyperparameters: Hyperparameters, path: str | Path) -> None:

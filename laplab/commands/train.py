@@ -19,7 +19,9 @@ def _add_job_options(parser: argparse.ArgumentParser, defaults: bool) -> None:
                              "way; repeat it for a multi-track job (rollout worker i drives track i mod count)")
     parser.add_argument("--reward", default=none, help="reward_function.py (default: laplab's lap_pace example)")
     parser.add_argument("--model-metadata", default=none, help="model_metadata.json (action space, sensors, network)")
-    parser.add_argument("--hyperparameters", default=none, help="hyperparameters.json")
+    parser.add_argument("--hyperparameters", default=none,
+                        help="hyperparameters.json, or the JSON itself, e.g. '{\"num_epochs\": 5}' (other keys keep "
+                             "their defaults)")
     parser.add_argument("--max-time", default="20m" if defaults else none, help="stop after this long (e.g. 90s, 20m, 1h)")
     parser.add_argument("--max-episodes", type=int, default=none, help="stop after this many training episodes")
     parser.add_argument("--seed", type=int, default=0 if defaults else none, help="random seed")
@@ -93,7 +95,7 @@ def register(subparsers) -> None:
 
 
 def _overrides(args: argparse.Namespace) -> dict:
-    from laplab.agents.hyperparameters import load_hyperparameters
+    from laplab.agents.hyperparameters import load_hyperparameters, parse_hyperparameters
     from laplab.env.metadata import load_model_metadata
     from laplab.train.config import parse_duration
     tracks = args.track or []
@@ -104,7 +106,9 @@ def _overrides(args: argparse.Namespace) -> dict:
            "max_time_s": parse_duration(args.max_time) if args.max_time else None}
     if args.model_metadata:
         out["model_metadata"] = load_model_metadata(args.model_metadata).to_dict()
-    if args.hyperparameters:
+    if args.hyperparameters and args.hyperparameters.lstrip().startswith("{"):  # the JSON itself
+        out["hyperparameters"] = parse_hyperparameters(args.hyperparameters, "--hyperparameters").to_dict()
+    elif args.hyperparameters:
         out["hyperparameters"] = load_hyperparameters(args.hyperparameters).to_dict()
     return out
 

@@ -75,6 +75,20 @@ def test_metadata_file_without_action_space_is_an_error(tmp_path, capsys):
     assert not model_folder("nometa").exists()
 
 
+def test_hyperparameters_given_as_json_on_the_command_line(laplab_home, capsys):
+    for given, expected in (('{"num_epochs": 3', "--hyperparameters: not valid JSON at line 1, column 17"),
+                            ('{"num_epochs": 30}', "'num_epochs' has the invalid value 30"),
+                            ('{"num_epoch": 3}', "Did you mean 'num_epochs'?")):
+        assert main(["train", "--name", "inline", "--hyperparameters", given, "--max-episodes", "2"]) == 2
+        assert expected in one_paragraph(capsys)
+        assert not model_folder("inline").exists()
+    tiny = {"num_episodes_between_training": 2, "batch_size": 32, "num_epochs": 3}
+    assert main(["train", "--name", "inline", "--hyperparameters", json.dumps(tiny), "--max-episodes", "2",
+                 "--quiet"]) == 0
+    written = json.loads(model_folder("inline").hyperparameters.read_text())
+    assert {key: written[key] for key in tiny} == tiny and written["lr"] == 0.0003  # the rest: defaults
+
+
 def test_imported_reward_function_needs_trust(trained, capsys, tmp_path):
     archive = tmp_path / "m.tar.gz"
     assert main(["export", "m", "--out", str(archive)]) == 0
