@@ -75,7 +75,8 @@ def _hand_made_evaluation(folder) -> str:
         "settings": {"track": None, "trials": 2},
         "trials": [{"index": 0, "status": "lap_complete", "lap_time": 12.5, "completion": 100.0, "off_track_count": 1},
                    {"index": 1, "status": "off_track", "lap_time": None, "completion": 42.0, "off_track_count": 1}],
-        "summary": {"trials": 2, "completed": 1, "best_lap": 12.5, "optimal_lap_time": 5.0, "gap_to_optimal": 2.5},
+        "summary": {"trials": 2, "completed": 1, "best_lap": 12.5, "optimal_lap_time": 5.0, "gap_to_optimal": 2.5,
+                    "standing_start_lap_time": 5.5},
         "video": "trial-1.gif",
     }
     (folder.evaluation_dir(stamp) / "summary.json").write_text(json.dumps(summary))
@@ -112,6 +113,7 @@ def test_report_with_evaluations_has_every_section(home, monkeypatch):
         assert f"<h2>{heading}</h2>" in page
     # The hand-made trial table: lap 12.5 s, gap 12.5 / 5.0, the off-track trial without a lap time.
     assert "<td>12.500</td>" in page and "<td>x2.500</td>" in page and "<td>off track</td>" in page
+    assert "the race line driven from rest takes 5.500 s (x1.100)" in page  # trials start at rest
     assert "No evaluation yet" not in page
 
 
