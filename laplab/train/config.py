@@ -170,7 +170,7 @@ def parse_track_spec(spec: str) -> tuple[str, bool]:
     return name, reverse
 
 
-_DURATION = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*(s|sec|m|min|h|hr)?\s*$", re.IGNORECASE)
+_DURATION = re.compile(r"^\s*([-+]?\d+(?:\.\d+)?)\s*(s|sec|m|min|h|hr)?\s*$", re.IGNORECASE)
 
 
 def parse_duration(text: str) -> float:

@@ -15,7 +15,7 @@ from rich.console import Console
 from laplab.reward.loader import load_reward_function
 from laplab.store.checkpoints import CheckpointStore
 from laplab.track.registry import load_track
-from laplab.train.config import TrainConfig
+from laplab.train.config import ConfigError, TrainConfig, parse_duration
 from laplab.train.events import PhaseProgress
 from laplab.train.jobs import create_training, resume_training
 from laplab.train.trainer import Trainer
@@ -190,3 +190,11 @@ def test_a_stop_before_the_first_minibatch_still_writes_the_iteration_log_and_re
     assert history.size == 1 and np.isnan(history.losses.get("policy_loss", [np.nan])[0])
     assert build_report(trainer.folder, out_dir=tmp_path / "report").is_file()
     assert ModelCatalog.iterations("cut")[0]["iteration"] == 1
+
+
+def test_durations_read_as_the_cli_writes_them():
+    assert [parse_duration(text) for text in ("90s", "20m", "1.5h", "45", " 2 min ")] == [90, 1200, 5400, 45, 120]
+    for text, message in (("-5", "must be positive"), ("0m", "must be positive"), ("abc", "write e.g. 90s"),
+                          ("5 days", "write e.g. 90s")):
+        with pytest.raises(ConfigError, match=message):
+            parse_duration(text)
