@@ -19,6 +19,7 @@ from typing import Any, Mapping
 import gymnasium as gym
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from laplab.agents.hyperparameters import PRECISIONS
@@ -85,6 +86,18 @@ def action_spec_from(spec: Any) -> ActionSpec:
         f"Cannot read an action space from {spec!r} ({type(spec).__name__}); give a number of "
         "discrete actions, a gymnasium Discrete or 1-D Box, or a model_metadata.json dict."
     )
+
+
+def _frozen_dense(layers: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    """``layers`` (nested Sequentials of Linear and ReLU) applied to ``x`` with detached weights."""
+    for layer in layers.modules():
+        if isinstance(layer, nn.Linear):
+            x = F.linear(x, layer.weight.detach(), None if layer.bias is None else layer.bias.detach())
+        elif isinstance(layer, nn.ReLU):
+            x = F.relu(x)
+        elif not isinstance(layer, nn.Sequential):
+            raise TypeError(f"_frozen_dense cannot run a {type(layer).__name__}")
+    return x
 
 
 def _dense_stack(in_dim: int, sizes: tuple[int, ...], activation: type[nn.Module]) -> nn.Sequential:
@@ -378,15 +391,18 @@ class SquashedGaussianActor(nn.Module):
         scale = None if action_scale is None else torch.as_tensor(action_scale, dtype=torch.float32).reshape(action_dim)
         self.register_buffer("action_scale", scale, persistent=False)  # not in checkpoints: it comes from the metadata
 
-    def forward(self, observations: Any, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, observations: Any, deterministic: bool = False,
+                noise: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """-> actions (B, A) in (-1, 1) (reparameterised, differentiable), log_prob (B,)."""
-        return self.from_features(self.trunk(observations), deterministic)
+        return self.from_features(self.trunk(observations), deterministic, noise)
 
-    def from_features(self, features: torch.Tensor, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
-        """The policy's heads on trunk ``features`` (B, F) -> actions (B, A), log_prob (B,)."""
+    def from_features(self, features: torch.Tensor, deterministic: bool = False,
+                      noise: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The policy's heads on trunk ``features`` (B, F) -> actions (B, A), log_prob (B,). ``noise``
+        (B, A): the standard normal draws of the sample (default: drawn here, as ``rsample`` does)."""
         mean = self.mean(features)
         normal = torch.distributions.Normal(mean, self.log_std(features).clamp(-20.0, 2.0).exp())
-        pre_tanh = mean if deterministic else normal.rsample()
+        pre_tanh = mean if deterministic else normal.rsample() if noise is None else mean + noise * normal.scale
         if self.action_scale is None:
             return torch.tanh(pre_tanh), squashed_gaussian_log_prob(pre_tanh, normal)
         return torch.tanh(pre_tanh), deepracer_squashed_log_prob(pre_tanh, normal, self.action_scale)
@@ -408,6 +424,13 @@ class TwinQ(nn.Module):
         """Both heads on trunk ``features`` (B, F) and ``actions`` (B, A) -> (q1 (B,), q2 (B,))."""
         joined = torch.cat([features, actions], dim=-1)
         return self.q1(joined).squeeze(-1), self.q2(joined).squeeze(-1)
+
+    def frozen_heads(self, features: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``heads`` with their weights held fixed: gradients reach ``actions`` (and ``features``), never
+        the weights. Safe on several threads at once: the modules are not touched (no ``requires_grad``
+        switching, no parameter swapping as ``torch.func.functional_call`` does)."""
+        joined = torch.cat([features, actions], dim=-1)
+        return _frozen_dense(self.q1, joined).squeeze(-1), _frozen_dense(self.q2, joined).squeeze(-1)
 
     def forward(self, observations: Any, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """-> (q1 (B,), q2 (B,))."""

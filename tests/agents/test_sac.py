@@ -239,3 +239,15 @@ def test_a_camera_checkpoint_from_before_shared_trunks_keeps_its_actors_own_trun
     assert {id(p) for g in restored.actor_optimizer.param_groups for p in g["params"]} == \
         {id(p) for p in restored.actor.parameters()}
     assert restored.update(1)["num_gradient_steps"] == 1
+
+
+def test_frozen_heads_equal_the_heads_and_train_only_what_feeds_them():
+    from laplab.agents.networks import TwinQ
+    critic = TwinQ(gym.spaces.Box(-1, 1, (6,), np.float32), 2)
+    features = torch.randn(5, critic.trunk.output_dim, requires_grad=True)
+    actions = torch.randn(5, 2, requires_grad=True)
+    for mine, theirs in zip(critic.frozen_heads(features, actions), critic.heads(features, actions)):
+        torch.testing.assert_close(mine, theirs)
+    sum(critic.frozen_heads(features, actions)).sum().backward()
+    assert all(parameter.grad is None for parameter in critic.parameters())  # the weights stay fixed
+    assert actions.grad.abs().sum() > 0 and features.grad.abs().sum() > 0
