@@ -93,7 +93,8 @@ def _flatten_time(observations: Any, rows: np.ndarray) -> Any:
     return array.reshape(-1, *array.shape[2:])[rows]
 
 
-def _take(observations: Any, index: np.ndarray) -> Any:
+def take_rows(observations: Any, index: np.ndarray | slice) -> Any:
+    """Some rows of a batch of observations (an array or tensor, or a dict sensor -> one)."""
     if isinstance(observations, Mapping):
         return {key: value[index] for key, value in observations.items()}
     return observations[index]
@@ -276,7 +277,7 @@ class PPOLearner:
                         stopped = True
                         break
                     index = order[start:start + hp.batch_size]
-                    totals += self._minibatch_step(_take(observations, index), actions[index], old_log_probs[index],
+                    totals += self._minibatch_step(take_rows(observations, index), actions[index], old_log_probs[index],
                                                    advantages[index], returns[index], value_side)
                     minibatches += 1
                     if on_progress is not None:

@@ -37,7 +37,7 @@ from laplab.agents.losses import sac_actor_loss, sac_critic_target
 from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, PolicyStep, SquashedGaussianActor,
                                     TwinQ, action_spec_from, has_convolutions, observation_to_tensor,
                                     set_compute_precision, twin_q_from_separate)
-from laplab.agents.ppo import limit_torch_threads
+from laplab.agents.ppo import limit_torch_threads, take_rows
 from laplab.agents.replay import ReplayBatch, ReplayBuffer
 from laplab.agents.side_stream import RunOnSide, SideStream, run_now
 
@@ -225,7 +225,7 @@ class SACLearner:
         def part(rows: slice) -> tuple[tuple[torch.Tensor | None, ...], torch.Tensor]:
             weight = (rows.stop - rows.start) / size  # the batch means as a weighted sum of the halves' means
             critic_loss, actor_loss, q1, log_probs = self._shared_losses(
-                _rows(obs, rows), _rows(next_obs, rows), actions[rows], rewards[rows], terminated[rows],
+                take_rows(obs, rows), take_rows(next_obs, rows), actions[rows], rewards[rows], terminated[rows],
                 next_noise[rows].to(self.device), new_noise[rows].to(self.device))
             grads = torch.autograd.grad(weight * (critic_loss + actor_loss), trained, allow_unused=True)
             return grads, weight * _step_stats(critic_loss, actor_loss, q1, log_probs)
@@ -327,13 +327,6 @@ class SACLearner:
             self.actor_optimizer.load_state_dict(state["actor_optimizer"])
             self.critic_optimizer.load_state_dict(state["critic_optimizer"])
         self.gradient_steps = int(state.get("gradient_steps", 0))
-
-
-def _rows(observations: Any, rows: slice) -> Any:
-    """Some rows of a minibatch's observations (a tensor, or a dict sensor -> tensor)."""
-    if isinstance(observations, Mapping):
-        return {key: value[rows] for key, value in observations.items()}
-    return observations[rows]
 
 
 def _step_stats(critic_loss: torch.Tensor, actor_loss: torch.Tensor, q1: torch.Tensor,
