@@ -127,7 +127,8 @@ class Evaluation:
     video file the summary names (None when absent or missing on disk); track: the track the
     summary names (None: the model's training track); reverse: its direction (None: the model's);
     optimal_lap_time: the race line's lap time the evaluator reported, s (None when it did not);
-    problems: files that exist but could not be read.
+    standing_start_lap_time: the same line driven from rest, as each trial starts, s (None when not
+    reported); problems: files that exist but could not be read.
     """
 
     stamp: str
@@ -138,6 +139,7 @@ class Evaluation:
     track: str | None
     reverse: bool | None
     optimal_lap_time: float | None
+    standing_start_lap_time: float | None
     problems: tuple[str, ...]
 
 
@@ -425,6 +427,7 @@ def load_evaluation(folder: ModelFolder, stamp: str) -> Evaluation:
                       track=str(track) if isinstance(track, str) else None,
                       reverse=bool(reverse) if reverse is not None else None,
                       optimal_lap_time=_number(_summary_value(summary, "optimal_lap_time")),
+                      standing_start_lap_time=_number(_summary_value(summary, "standing_start_lap_time")),
                       problems=tuple(problems))
 
 

@@ -333,17 +333,11 @@ def _trial_table(evaluation: Evaluation, optimal: float | None) -> str:
     table = _table(["trial", "status", "completion (%)", "lap time (s)", "off-track", "gap to optimal"], rows)
     if optimal is None:
         return table
-    standing = _summary_value(evaluation, "standing_start_lap_time")
-    from_rest = "" if standing is None else (f" Each trial starts at rest: the race line driven from rest takes "
+    standing = evaluation.standing_start_lap_time
+    from_rest = "" if standing is None or standing <= 0 else (f" Each trial starts at rest: the race line driven from rest takes "
                                              f"{standing:.3f} s (x{standing / optimal:.3f}).")
     return table + (f"<p class='sub'>Gap to optimal = lap time / the optimal (race-line) lap, {optimal:.3f} s, a "
                     f"flying lap.{from_rest}</p>")
-
-
-def _summary_value(evaluation: Evaluation, key: str) -> float | None:
-    """A number of summary.json's ``summary`` object (None when absent or not a number)."""
-    value = ((evaluation.summary or {}).get("summary") or {}).get(key)
-    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) and value > 0 else None
 
 
 def _summary_facts(evaluation: Evaluation) -> str:
