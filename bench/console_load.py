@@ -14,7 +14,7 @@ as console jobs under the load. Clients and server share this machine's cores wi
 so the bench also prints the share of the machine's CPU each took.
 
 Usage: python bench/console_load.py [--seconds 90] [--clients 50] [--streams 20] [--think 0.2] [--no-baseline]
-                                    [--no-quiet-phase]
+                                    [--no-quiet-phase] [--repeats 1]
        python bench/console_load.py --cpu-per-request --seconds 20 --clients 20 --streams 20
 """
 
@@ -29,7 +29,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -72,6 +71,27 @@ def steps_per_second(model_dir: Path) -> float | None:
     return rows[-1]["env_steps"] / rows[-1]["elapsed_s"] if rows else None
 
 
+def iteration_log(model_dir: Path) -> list[tuple[int, float]]:
+    """(env steps, wall seconds since the start) at the end of each iteration of a training."""
+    path = model_dir / "metrics" / "laplab-iterations.json"
+    rows = json.loads(path.read_text())["iterations"] if path.exists() else []
+    return [(row["env_steps"], row["elapsed_s"]) for row in rows]
+
+
+def equal_work_ratio(reference: list[list[tuple[int, float]]], other: list[list[tuple[int, float]]]) -> tuple[float, int] | None:
+    """How fast ``other``'s trainings did the same work as ``reference``'s: the wall-time ratio at the last
+    iteration both reached, averaged over the trainings, and that iteration. The trainings are seeded,
+    so the same iteration holds the same episodes (checked: equal env steps); None when they differ."""
+    ratios, reached = [], []
+    for ref, oth in zip(reference, other):
+        k = min(len(ref), len(oth)) - 1
+        if k < 0 or ref[k][0] != oth[k][0]:
+            return None
+        ratios.append(ref[k][1] / oth[k][1])
+        reached.append(k + 1)
+    return statistics.mean(ratios), min(reached)
+
+
 def first_iteration_s(model_dir: Path) -> float | None:
     """Wall seconds of a training's first iteration (its start-up: JIT caches, first frames), from its log."""
     path = model_dir / "metrics" / "laplab-iterations.json"
@@ -93,9 +113,26 @@ def cpu_seconds(pid: int) -> float | None:
         return None
 
 
-def baseline(home: Path, seconds: float) -> tuple[list[float | None], list[float | None]]:
+def start_load(port: int, clients: int, streams: int, think: float, models: list[str]) -> subprocess.Popen:
+    """The browsers: ``bench/http_load.py`` in its own process (one event loop, lean HTTP), until stopped."""
+    command = [sys.executable, str(Path(__file__).with_name("http_load.py")), "--port", str(port), "--token", TOKEN,
+               "--clients", str(clients), "--streams", str(streams), "--think", str(think)]
+    for model in models:
+        command += ["--model", model]
+    return subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+
+
+def finish_load(load: subprocess.Popen) -> dict:
+    """Stop the load generator; its results, with ``clients_cpu`` its CPU seconds."""
+    output, _ = load.communicate("", timeout=60)
+    result = json.loads(output)
+    result["clients_cpu"] = result.pop("cpu")
+    return result
+
+
+def baseline(home: Path, seconds: float) -> dict:
     """Two `laplab train` processes at once, no server, with the thread setting the console gives its jobs:
-    their env steps/s and their first iterations' wall seconds."""
+    their env steps/s, their first iterations' wall seconds and their iteration logs."""
     env = {**os.environ, "LAPLAB_HOME": str(home), "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1")}
     home.mkdir(parents=True, exist_ok=True)
     hp = home / "hp.json"
@@ -105,8 +142,9 @@ def baseline(home: Path, seconds: float) -> tuple[list[float | None], list[float
                                   env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for i in range(2)]
     for p in processes:
         p.wait(seconds + 600)
-    return [steps_per_second(home / "models" / f"base-{i}") for i in range(2)], \
-        [first_iteration_s(home / "models" / f"base-{i}") for i in range(2)]
+    return {"steps": [steps_per_second(home / "models" / f"base-{i}") for i in range(2)],
+            "first": [first_iteration_s(home / "models" / f"base-{i}") for i in range(2)],
+            "logs": [iteration_log(home / "models" / f"base-{i}") for i in range(2)]}
 
 
 def with_server(home: Path, seconds: float, clients: int, streams: int, think: float) -> dict:
@@ -127,65 +165,21 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
             answer = admin.post("/api/models", json={"name": f"served-{i}", "track": "oval", "max_time_s": seconds,
                                                      "hyperparameters": HYPERPARAMETERS})
             answer.raise_for_status()
-        stop = threading.Event()
-        latencies: list[float] = []
-        slow: list[tuple[float, float]] = []  # (s since the load started, latency s) of requests over 100 ms
-        deliveries: list[float] = []
-        errors = [0]
-
-        def api_client():
-            stop.wait(random.uniform(0, think))  # pages opened at different moments, not in lock-step
-            with httpx.Client(base_url=url, headers=headers, timeout=30, **PLAIN_HTTP) as client:
-                while not stop.is_set():
-                    t0 = time.perf_counter()
-                    try:
-                        ok = client.get("/api/models").status_code == 200
-                    except httpx.HTTPError:
-                        ok = False
-                    if ok:
-                        latencies.append(time.perf_counter() - t0)
-                        if latencies[-1] > 0.1:
-                            slow.append((t0 - load_started, latencies[-1]))
-                    else:
-                        errors[0] += 1
-                    stop.wait(think)
-
-        def stream_client(model: str):
-            with httpx.Client(base_url=url, headers=headers, timeout=httpx.Timeout(30, read=None), **PLAIN_HTTP) as client:
-                try:
-                    with client.stream("GET", f"/api/models/{model}/events") as response:
-                        kind = None
-                        for line in response.iter_lines():
-                            if stop.is_set():
-                                return
-                            if line.startswith("event: "):
-                                kind = line[7:]
-                            elif line.startswith("data: ") and kind == "iteration":
-                                deliveries.append(time.time() - json.loads(line[6:])["t"])
-                except httpx.HTTPError:
-                    errors[0] += 1
-
-        threads = [threading.Thread(target=api_client, daemon=True) for _ in range(clients)]
-        threads += [threading.Thread(target=stream_client, args=(f"served-{i % 2}",), daemon=True) for i in range(streams)]
-        cpu_start, clients_start, wall_start = cpu_seconds(server.pid), time.process_time(), time.monotonic()
-        load_started = time.perf_counter()
-        for t in threads:
-            t.start()
+        load = start_load(port, clients, streams, think, [f"served-{i}" for i in range(2)])
+        cpu_start, wall_start = cpu_seconds(server.pid), time.monotonic()
         end = time.monotonic() + seconds + 600
         while time.monotonic() < end:
             statuses = [admin.get(f"/api/models/served-{i}").json()["status"] for i in range(2)]
             if all(s in ("ready", "failed") for s in statuses):
                 break
             time.sleep(1)
-        stop.set()
-        cpu_end, clients_cpu = cpu_seconds(server.pid), time.process_time() - clients_start
-        wall = time.monotonic() - wall_start
-        for t in threads:
-            t.join(5)
+        cpu_end, wall = cpu_seconds(server.pid), time.monotonic() - wall_start
+        result = finish_load(load)
         cpu = None if cpu_start is None or cpu_end is None else cpu_end - cpu_start
-        return {"latencies": latencies, "deliveries": deliveries, "errors": errors[0], "statuses": statuses, "cpu": cpu,
-                "clients_cpu": clients_cpu, "wall": wall, "slow": slow, "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)],
-                "first": [first_iteration_s(home / "models" / f"served-{i}") for i in range(2)]}
+        return {**result, "statuses": statuses, "cpu": cpu, "wall": wall,
+                "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)],
+                "first": [first_iteration_s(home / "models" / f"served-{i}") for i in range(2)],
+                "logs": [iteration_log(home / "models" / f"served-{i}") for i in range(2)]}
     finally:
         admin.close()
         server.terminate()
@@ -194,7 +188,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
 
 def cpu_per_request(home: Path, seconds: float, clients: int, streams: int) -> None:
     """The server's CPU time per ``GET /api/models`` with one idle model, ``streams`` open event
-    streams on it and ``clients`` threads asking with no think time (no trainings: the figure the
+    streams on it and ``clients`` clients asking with no think time (no trainings: the figure the
     machine's other load disturbs least)."""
     from dataclasses import replace
     os.environ["LAPLAB_HOME"] = str(home)
@@ -209,37 +203,20 @@ def cpu_per_request(home: Path, seconds: float, clients: int, streams: int) -> N
                               env={**os.environ, "LAPLAB_ADMIN_TOKEN": TOKEN}, stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL)
     url, headers = f"http://127.0.0.1:{port}", {"Authorization": f"Bearer {TOKEN}"}
-    stop, latencies = threading.Event(), []
     try:
         with httpx.Client(base_url=url, headers=headers, **PLAIN_HTTP) as admin:
             wait_for_server(admin, "/api/models")
-
-        def stream_client():
-            with httpx.Client(base_url=url, headers=headers, timeout=httpx.Timeout(30, read=None), **PLAIN_HTTP) as client:
-                with client.stream("GET", "/api/models/idle/events") as response:
-                    for _ in response.iter_lines():
-                        if stop.is_set():
-                            return
-
-        def api_client():
-            with httpx.Client(base_url=url, headers=headers, timeout=30, **PLAIN_HTTP) as client:
-                while not stop.is_set():
-                    t0 = time.perf_counter()
-                    if client.get("/api/models").status_code == 200:
-                        latencies.append(time.perf_counter() - t0)
-
-        for _ in range(streams):
-            threading.Thread(target=stream_client, daemon=True).start()
+        stream_load = start_load(port, 0, streams, 0, ["idle"])
         time.sleep(2)
         idle_start = cpu_seconds(server.pid)
         time.sleep(5)
         idle = (cpu_seconds(server.pid) - idle_start) / 5
         cpu_start = cpu_seconds(server.pid)
-        for _ in range(clients):
-            threading.Thread(target=api_client, daemon=True).start()
+        api_load = start_load(port, clients, 0, 0, ["idle"])
         time.sleep(seconds)
-        stop.set()
         cpu = cpu_seconds(server.pid) - cpu_start
+        latencies = finish_load(api_load)["latencies"]
+        finish_load(stream_load)
     finally:
         server.terminate()
         server.wait(60)
@@ -260,6 +237,8 @@ def main() -> None:
     parser.add_argument("--no-baseline", action="store_true", help="skip the trainings without the server")
     parser.add_argument("--no-quiet-phase", action="store_true",
                         help="skip the trainings run by the server with no clients (the server's own cost)")
+    parser.add_argument("--repeats", type=int, default=1,
+                        help="rounds of the three phases, each printed, with the medians of their ratios")
     parser.add_argument("--cpu-per-request", action="store_true",
                         help="only the server's CPU per request: an idle model, --streams streams, --clients clients "
                              "with no think time for --seconds")
@@ -268,11 +247,28 @@ def main() -> None:
         with tempfile.TemporaryDirectory(prefix="laplab-bench-") as folder:
             cpu_per_request(Path(folder), args.seconds, args.clients, args.streams)
         return
-    with tempfile.TemporaryDirectory(prefix="laplab-bench-") as folder:
-        root = Path(folder)
-        base, base_first = ([None, None], [None, None]) if args.no_baseline else baseline(root / "baseline", args.seconds)
-        quiet = None if args.no_quiet_phase else with_server(root / "quiet", args.seconds, 0, 0, args.think)
-        served = with_server(root / "served", args.seconds, args.clients, args.streams, args.think)
+    ratios = []
+    for repeat in range(args.repeats):
+        with tempfile.TemporaryDirectory(prefix="laplab-bench-") as folder:
+            root = Path(folder)
+            base = {"steps": [None, None], "first": [None, None], "logs": [[], []]} if args.no_baseline \
+                else baseline(root / "baseline", args.seconds)
+            quiet = None if args.no_quiet_phase else with_server(root / "quiet", args.seconds, 0, 0, args.think)
+            served = with_server(root / "served", args.seconds, args.clients, args.streams, args.think)
+        if args.repeats > 1:
+            print(f"round {repeat + 1} of {args.repeats}")
+        ratios.append(report(args, base, quiet, served))
+    if args.repeats > 1 and ratios[0]:
+        medians = [statistics.median(r[i] for r in ratios) for i in range(len(ratios[0]))]
+        print(f"median of {args.repeats} rounds, the same work under the load: {medians[0]:.2f}x as fast as without "
+              f"the server" + ("" if len(medians) < 2 else f", {medians[1]:.2f}x as fast as console jobs with no clients"))
+
+
+def report(args: argparse.Namespace, base: dict, quiet: dict | None, served: dict) -> list[float]:
+    """Print one round's figures; return its trainings' equal-work speed ratios (under the load against
+    without the server, and against the console with no clients when that phase ran)."""
+    mean = lambda xs: statistics.mean([x for x in xs if x is not None] or [float("nan")])  # noqa: E731
+    fmt = lambda xs: ", ".join("-" if x is None else f"{x:.1f}" for x in xs)  # noqa: E731
     lat, dl = served["latencies"], served["deliveries"]
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end")
     print(f"GET /api/models: {len(lat)} requests from {args.clients} clients (think {args.think:g} s): "
@@ -282,25 +278,33 @@ def main() -> None:
         print(f"  {len(served['slow'])} requests over 100 ms, the first: {when}")
     if served["cpu"] is not None and lat:
         print(f"server CPU during the load: {served['cpu']:.1f} s, {1000 * served['cpu'] / len(lat):.2f} ms per "
-              f"GET /api/models answered (streams, scheduler and the other requests included); the client "
-              f"threads' CPU (this process, same machine): {served['clients_cpu']:.1f} s")
+              f"GET /api/models answered (streams, scheduler and the other requests included); the load "
+              f"generator's CPU (bench/http_load.py, same machine): {served['clients_cpu']:.1f} s")
     print(f"iteration events over {args.streams} streams: {len(dl)} delivered, p50 {1000 * percentile(dl, 50):.0f} ms, "
           f"p99 {1000 * percentile(dl, 99):.0f} ms, max {1000 * max(dl, default=float('nan')):.0f} ms")
-    fmt = lambda xs: ", ".join("-" if x is None else f"{x:.1f}" for x in xs)  # noqa: E731
-    mean = lambda xs: statistics.mean([x for x in xs if x is not None] or [float("nan")])  # noqa: E731
-    print(f"env steps/s of 2 trainings: without the server {fmt(base)} (mean {mean(base):.1f}); "
-          f"with the server and the load {fmt(served['steps'])} (mean {mean(served['steps']):.1f}); "
-          f"ratio {mean(served['steps']) / mean(base):.2f}; final statuses {served['statuses']}")
-    if quiet is not None:
-        print(f"  as console jobs, no clients: {fmt(quiet['steps'])} (mean {mean(quiet['steps']):.1f}), ratio to "
-              f"without the server {mean(quiet['steps']) / mean(base):.2f}; the load's clients then take the "
-              f"ratio to {mean(served['steps']) / mean(quiet['steps']):.2f} of that")
-    print(f"  first iteration (s): without the server {fmt(base_first)}; with the load {fmt(served['first'])}"
+    steps = lambda phase: f"{fmt(phase['steps'])} (mean {mean(phase['steps']):.1f})"  # noqa: E731
+    print(f"env steps/s of 2 trainings (a training's env steps / wall s at its last iteration): without the server "
+          f"{steps(base)}; as console jobs with no clients {'-' if quiet is None else steps(quiet)}; with the server "
+          f"and the load {steps(served)}; final statuses {served['statuses']}")
+    ratios = []
+    for name, reference in (("without the server", base), ("as console jobs with no clients", quiet)):
+        if reference is None or not any(reference["logs"]):
+            continue
+        same = equal_work_ratio(reference["logs"], served["logs"])
+        if same is not None:
+            ratios.append(same[0])
+            print(f"  the same work (the first {same[1]} iterations, seeded) under the load ran {same[0]:.2f}x as fast as "
+                  f"{name}")
+        else:
+            ratios.append(float("nan"))
+            print(f"  {name}: not the same iterations (env steps differ), no equal-work ratio")
+    print(f"  first iteration (s): without the server {fmt(base['first'])}; with the load {fmt(served['first'])}"
           + ("" if quiet is None else f"; no clients {fmt(quiet['first'])}"))
     if served["cpu"] is not None:
         print(f"  the server's share of the machine under the load: {served['cpu'] / (served['wall'] * os.cpu_count()):.1%}"
               f" of its CPU ({served['cpu']:.1f} s in {served['wall']:.0f} s on {os.cpu_count()} cores); the clients' "
               f"{served['clients_cpu'] / (served['wall'] * os.cpu_count()):.1%}")
+    return ratios
 
 
 if __name__ == "__main__":
