@@ -62,9 +62,10 @@ def main(argv: list[str] | None = None) -> int:
         from laplab.train.config import TrainConfig
         from laplab.train.jobs import create_training
         tiny = {"num_episodes_between_training": 2, "num_epochs": 3, "batch_size": 32}
-        for name, sensors in (("warmup", ["STATE"]), ("warmup-camera", ["FRONT_FACING_CAMERA"])):
-            config = TrainConfig(model_metadata={"sensor": sensors}, max_episodes=2, max_time_s=600.0)
-            config = replace(config, hyperparameters={**config.hyper().to_dict(), **tiny})
+        camera = TrainConfig(model_metadata={"sensor": ["FRONT_FACING_CAMERA"]})
+        for name, config in (("warmup", TrainConfig()), ("warmup-camera", camera)):
+            config = replace(config, max_episodes=2, max_time_s=600.0,
+                             hyperparameters={**config.hyper().to_dict(), **tiny})
             create_training(name, config).run()
     (cache / READY_MARKER).write_text("ok\n")
     return 0
