@@ -303,7 +303,10 @@ const Console = (() => {
     renderModel(); renderRows(); await live.setTrack(model.track || "classic_2018");
     if ((model.sensor || []).some(s => s.includes("CAMERA"))) {
       $("#camera-box").hidden = false;
-      const frame = () => { if (["training", "stopping"].includes(model.status) || !$("#camera").src) $("#camera").src = `/api/models/${name}/camera.png?t=${Date.now()}`; };
+      // the job writes its first frame with its first poses: asking before them only meets 404s
+      const driving = () => ["training", "stopping"].includes(model.status) && +($("#live").dataset.frames || 0) > 0;
+      const frame = () => { if (driving() || !$("#camera").src) $("#camera").src = `/api/models/${name}/camera.png?t=${Date.now()}`; };
+      $("#camera").addEventListener("load", () => $("#camera-box").hidden = false);
       $("#camera").addEventListener("error", () => $("#camera-box").hidden = model.status !== "training");
       frame(); setInterval(frame, 1000);
     }
