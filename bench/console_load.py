@@ -61,20 +61,20 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def steps_per_second(model_dir: Path) -> float | None:
-    """Env steps per wall second of a training, from laplab's iteration log."""
-    path = model_dir / "metrics" / "laplab-iterations.json"
-    if not path.exists():
-        return None
-    rows = json.loads(path.read_text())["iterations"]
-    return rows[-1]["env_steps"] / rows[-1]["elapsed_s"] if rows else None
-
-
 def iteration_log(model_dir: Path) -> list[tuple[int, float]]:
     """(env steps, wall seconds since the start) at the end of each iteration of a training."""
     path = model_dir / "metrics" / "laplab-iterations.json"
     rows = json.loads(path.read_text())["iterations"] if path.exists() else []
     return [(row["env_steps"], row["elapsed_s"]) for row in rows]
+
+
+def trainings(models: Path, prefix: str) -> dict:
+    """The two trainings ``PREFIX-0`` and ``PREFIX-1`` of a phase, from their iteration logs: env steps per
+    wall second at the last iteration (``steps``), the first iteration's wall seconds (its start-up: JIT
+    caches, first frames; ``first``) and the logs themselves (``logs``)."""
+    logs = [iteration_log(models / f"{prefix}-{i}") for i in range(2)]
+    return {"steps": [log[-1][0] / log[-1][1] if log else None for log in logs],
+            "first": [log[0][1] if log else None for log in logs], "logs": logs}
 
 
 def equal_work_ratio(reference: list[list[tuple[int, float]]], other: list[list[tuple[int, float]]]) -> tuple[float, int] | None:
@@ -89,13 +89,6 @@ def equal_work_ratio(reference: list[list[tuple[int, float]]], other: list[list[
         ratios.append(ref[k][1] / oth[k][1])
         reached.append(k + 1)
     return statistics.mean(ratios), min(reached)
-
-
-def first_iteration_s(model_dir: Path) -> float | None:
-    """Wall seconds of a training's first iteration (its start-up: JIT caches, first frames), from its log."""
-    path = model_dir / "metrics" / "laplab-iterations.json"
-    rows = json.loads(path.read_text())["iterations"] if path.exists() else []
-    return rows[0]["elapsed_s"] if rows else None
 
 
 def percentile(values: list[float], q: float) -> float:
@@ -141,9 +134,7 @@ def baseline(home: Path, seconds: float) -> dict:
                                   env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for i in range(2)]
     for p in processes:
         p.wait(seconds + 600)
-    return {"steps": [steps_per_second(home / "models" / f"base-{i}") for i in range(2)],
-            "first": [first_iteration_s(home / "models" / f"base-{i}") for i in range(2)],
-            "logs": [iteration_log(home / "models" / f"base-{i}") for i in range(2)]}
+    return trainings(home / "models", "base")
 
 
 def with_server(home: Path, seconds: float, clients: int, streams: int, think: float) -> dict:
@@ -175,10 +166,7 @@ def with_server(home: Path, seconds: float, clients: int, streams: int, think: f
         cpu_end, wall = cpu_seconds(server.pid), time.monotonic() - wall_start
         result = finish_load(load)
         cpu = None if cpu_start is None or cpu_end is None else cpu_end - cpu_start
-        return {**result, "statuses": statuses, "cpu": cpu, "wall": wall,
-                "steps": [steps_per_second(home / "models" / f"served-{i}") for i in range(2)],
-                "first": [first_iteration_s(home / "models" / f"served-{i}") for i in range(2)],
-                "logs": [iteration_log(home / "models" / f"served-{i}") for i in range(2)]}
+        return {**result, "statuses": statuses, "cpu": cpu, "wall": wall, **trainings(home / "models", "served")}
     finally:
         admin.close()
         server.terminate()

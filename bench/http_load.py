@@ -63,13 +63,19 @@ class Load:
         self.started = time.perf_counter()
         self.stop = asyncio.Event()
 
+    async def stopped_within(self, seconds: float) -> bool:
+        """Wait ``seconds`` (none when 0) or until the load stops; whether it stopped."""
+        if seconds > 0:
+            try:
+                await asyncio.wait_for(self.stop.wait(), seconds)
+            except asyncio.TimeoutError:
+                pass
+        return self.stop.is_set()
+
     async def api_client(self, port: int, token: str, think: float) -> None:
         """One Models page: ``GET /api/models`` every ``think`` s on one keep-alive connection."""
-        try:
-            await asyncio.wait_for(self.stop.wait(), random.uniform(0, think) if think > 0 else 0.001)
+        if await self.stopped_within(random.uniform(0, think)):  # pages opened at different moments
             return
-        except asyncio.TimeoutError:
-            pass
         message = request("/api/models", port, token)
         reader, writer = await asyncio.open_connection("127.0.0.1", port)
         try:
@@ -89,11 +95,7 @@ class Load:
                         self.slow.append((t0 - self.started, latency))
                 else:
                     self.errors += 1
-                if think > 0:
-                    try:
-                        await asyncio.wait_for(self.stop.wait(), think)
-                    except asyncio.TimeoutError:
-                        pass
+                await self.stopped_within(think)
         except (OSError, ConnectionError, httptools.HttpParserError):
             self.errors += 1
         finally:
