@@ -18,11 +18,18 @@ space) or ``ppo-discrete`` (laplab's 21-action grid). The issue-15 rows, for an 
   python bench/time_to_lap.py --tracks classic_2018 --seeds 0 --console ppo-continuous --budget 900 --min-time 600
   python bench/time_to_lap.py --tracks classic_2018 --seeds 0 --console ppo-discrete --budget 900 --min-time 600
 
+``--workers N`` collects on N rollout workers on Ray (a local Ray, or the cluster at ``--ray-address``)
+and ``--device cuda`` puts the learner on a GPU, as ``laplab train`` does: issue 13's camera model on a
+16-core machine with a GPU is
+
+  python bench/time_to_lap.py --tracks classic_2018 --seeds 0 1 2 --console ppo-discrete --workers 14 --device cuda --budget 600
+
 Usage:
   python bench/time_to_lap.py [--seeds 0 1 2] [--tracks classic_2018 ../shared/reference-tracks/reinvent_base.npy]
                               [--sensor STATE|FRONT_FACING_CAMERA] [--console sac|ppo-continuous|ppo-discrete]
                               [--budget 600] [--min-time 0]
                               [--precision auto|float32|bfloat16] [--hyperparameters '{"num_epochs": 5}']
+                              [--workers 1] [--device cpu|cuda] [--ray-address ADDR]
 """
 
 from __future__ import annotations
@@ -41,7 +48,9 @@ DEFAULT_TRACKS = ["classic_2018", str(REFERENCE / "reinvent_base.npy"), str(REFE
 
 
 def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s: float = 0.0,
-                precision: str = "auto", hyperparameters: dict | None = None, console: str | None = None) -> dict:
+                precision: str = "auto", hyperparameters: dict | None = None, console: str | None = None,
+                workers: int = 1, device: str = "cpu", ray_address: str | None = None) -> dict:
+    from laplab.cluster.launch import uses_ray
     from laplab.env.metadata import ModelMetadata
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import create_training
@@ -52,11 +61,11 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
     else:
         metadata = replace(ModelMetadata(), sensors=(sensor,)).to_dict()
     config = replace(TrainConfig(), track=track, seed=seed, max_time_s=budget_s, model_metadata=metadata,
-                     precision=precision)
+                     precision=precision, workers=workers)
     if hyperparameters:
         config = replace(config, hyperparameters={**config.hyper().to_dict(), **hyperparameters})
     name = f"bench-{Path(track).stem.replace('_', '-')}-{seed}-{int(time.time() * 1000) % 10**8}"
-    trainer = create_training(name, config)
+    trainer = create_training(name, config, device=device)
     first: dict = {}
     end: dict = {}
     seconds: dict[str, float] = {}
@@ -70,9 +79,17 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
             first.update(wall=report.elapsed_s, iterations=report.iteration, steps=report.env_steps,
                          lap=report.eval_lap_time, best=report.best_lap_time)
 
+    collector = None
+    if uses_ray(workers, ray_address):  # started before the clock, as `laplab train` starts its workers
+        from laplab.cluster.launch import attach_workers
+        collector = attach_workers(trainer, workers, ray_address)
     started = time.perf_counter()
     done = lambda: bool(first) and time.perf_counter() - started >= min_time_s
-    result = trainer.run(callbacks=(on_iteration,), should_stop=done)
+    try:
+        result = trainer.run(callbacks=(on_iteration,), should_stop=done)
+    finally:
+        if collector is not None:
+            collector.close()
     elapsed = time.perf_counter() - started
     total = sum(seconds.values()) or 1.0
     return {"lapped": bool(first), "wall": first.get("wall", float("nan")), "iterations": first.get("iterations", result.iterations),
@@ -99,8 +116,21 @@ def main() -> None:
     parser.add_argument("--hyperparameters", default="{}", help="JSON of hyperparameters to override")
     parser.add_argument("--console", choices=("sac", "ppo-continuous", "ppo-discrete"),
                         help="train with the console's files (front camera, SHALLOW network); see above")
+    parser.add_argument("--workers", type=int, default=1, help="rollout workers on Ray (1: in-process)")
+    parser.add_argument("--device", default="cpu", help="the learner's torch device: cpu or cuda")
+    parser.add_argument("--ray-address", default=None, help="join this Ray cluster (default: a local Ray)")
     args = parser.parse_args()
+    from laplab.cluster.launch import resolve_device
+    from laplab.train.errors import JobError
+    try:
+        device = resolve_device(args.device)
+    except JobError as error:
+        raise SystemExit(f"time_to_lap.py: {error}") from None
     label = f"camera {args.console}" if args.console else args.sensor
+    if args.workers > 1 or args.ray_address:
+        label += f" x{args.workers}"
+    if device != "cpu":
+        label += f" {device}"
     os.environ.setdefault("LAPLAB_HOME", tempfile.mkdtemp(prefix="laplab-bench-"))
     print(f"{'track':28s} {'model':20s} {'lapped':>6s} {'time to 3/3 s':>13s} {'iters':>5s} "
           f"{'env steps':>9s} {'eval lap s':>10s} {'end lap s':>9s} {'/opt':>5s} {'steps/s':>8s}  time shares")
@@ -109,7 +139,8 @@ def main() -> None:
             print(f"{Path(track).name:28s} skipped: file not found")
             continue
         runs = [time_to_lap(track, seed, args.sensor, args.budget, args.min_time, args.precision,
-                            json.loads(args.hyperparameters), args.console) for seed in args.seeds]
+                            json.loads(args.hyperparameters), args.console, args.workers, device,
+                            args.ray_address) for seed in args.seeds]
         lapped = [r for r in runs if r["lapped"]]
         med = lambda key: statistics.median(r[key] for r in lapped) if lapped else float("nan")
         laps = [r["eval_lap"] for r in lapped if r["eval_lap"]]

@@ -26,7 +26,7 @@ from laplab.sim.state import EpisodeParams
 from laplab.track.geometry import Track
 from laplab.train.collect import CollectionAborted, EpisodeBatch, collect_episodes
 from laplab.train.config import TrainConfig
-from laplab.train.resume_codec import pack_state
+from laplab.train.resume_codec import on_cpu, pack_state
 from laplab.sim.state import episodes_done_and_steps
 from laplab.train.events import CheckpointReady, IterationEpisodes, IterationReport, PhaseProgress, PosesFrame
 from laplab.vehicle.params import vehicle_preset
@@ -70,7 +70,7 @@ def checkpoint_writer(learner: Learner, iteration: int, env_steps: int, episodes
     """A checkpoint (the learner's weights plus where the job stood), as a function that writes it to
     a path (straight to the file: a camera network's weights are tens of MB). Optimizer state and
     target networks are not in it: see :func:`resume_writer`."""
-    state = {"learner": learner.weights_state(), "iteration": iteration, "env_steps": env_steps,
+    state = {"learner": on_cpu(learner.weights_state()), "iteration": iteration, "env_steps": env_steps,
              "episodes": episodes, "best_lap_time": best_lap_time}
     return lambda path: torch.save(state, path)
 
