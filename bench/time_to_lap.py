@@ -82,7 +82,10 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
     collector = None
     if uses_ray(workers, ray_address):  # started before the clock, as `laplab train` starts its workers
         from laplab.cluster.launch import attach_workers
+        starting = time.perf_counter()
         collector = attach_workers(trainer, workers, ray_address)
+        print(f"(seed {seed}: {workers} rollout workers started in {time.perf_counter() - starting:.1f} s, "
+              "before the clock)", flush=True)
     started = time.perf_counter()
     done = lambda: bool(first) and time.perf_counter() - started >= min_time_s
     try:
