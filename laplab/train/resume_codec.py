@@ -13,7 +13,7 @@ of tensors and plain values, read with ``weights_only=True``.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch
@@ -27,13 +27,7 @@ def pack_state(state: Any) -> Any:
     """``state`` (nested dicts, lists, tuples of tensors and plain values) with each large float
     tensor replaced by ``{PACKED_KEY: uint8 tensor, "dtype": str, "shape": list}`` and the others on
     the CPU."""
-    if isinstance(state, torch.Tensor):
-        return _pack_tensor(state) if _packable(state) else state.cpu()
-    if isinstance(state, dict):
-        return {key: pack_state(value) for key, value in state.items()}
-    if isinstance(state, (list, tuple)):
-        return type(state)(pack_state(value) for value in state)
-    return state
+    return map_tensors(state, lambda tensor: _pack_tensor(tensor) if _packable(tensor) else tensor.cpu())
 
 
 def unpack_state(state: Any) -> Any:
@@ -49,15 +43,20 @@ def unpack_state(state: Any) -> Any:
 
 
 def on_cpu(state: Any) -> Any:
-    """``state`` (dicts, lists and tuples of tensors and plain data) with every tensor on the CPU: a
-    checkpoint of a learner on a GPU loads anywhere, even with a plain ``torch.load``. CPU tensors are
-    not copied."""
+    """``state`` with every tensor on the CPU: a checkpoint of a learner on a GPU loads anywhere, even
+    with a plain ``torch.load``. CPU tensors are not copied."""
+    return map_tensors(state, torch.Tensor.cpu)
+
+
+def map_tensors(state: Any, change: Callable[[torch.Tensor], Any]) -> Any:
+    """``state`` (nested dicts, lists and tuples of tensors and plain values) with ``change(tensor)``
+    in place of each tensor."""
     if isinstance(state, torch.Tensor):
-        return state.cpu()
+        return change(state)
     if isinstance(state, dict):
-        return {key: on_cpu(value) for key, value in state.items()}
+        return {key: map_tensors(value, change) for key, value in state.items()}
     if isinstance(state, (list, tuple)):
-        return type(state)(on_cpu(value) for value in state)
+        return type(state)(map_tensors(value, change) for value in state)
     return state
 
 

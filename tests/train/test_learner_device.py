@@ -21,6 +21,7 @@ from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import model_folder
 from laplab.train.config import TrainConfig
 from laplab.train.jobs import create_training, resume_training
+from laplab.train.resume_codec import map_tensors
 from laplab.train.trainer import build_learner, load_checkpoint
 
 CONTINUOUS = {"action_space": {"steering_angle": {"low": -30, "high": 30}, "speed": {"low": 0.5, "high": 1.5}},
@@ -58,10 +59,9 @@ def frames(config: TrainConfig, count: int = 6) -> np.ndarray | dict:
 
 def tensors(state) -> list[torch.Tensor]:
     """Every tensor in a checkpoint's nested dicts and lists."""
-    if isinstance(state, torch.Tensor):
-        return [state]
-    values = state.values() if isinstance(state, dict) else state if isinstance(state, (list, tuple)) else ()
-    return [tensor for value in values for tensor in tensors(value)]
+    found: list[torch.Tensor] = []
+    map_tensors(state, found.append)
+    return found
 
 
 @pytest.mark.parametrize("device,algorithm,meta", ROWS)
