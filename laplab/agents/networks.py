@@ -391,18 +391,15 @@ class SquashedGaussianActor(nn.Module):
         scale = None if action_scale is None else torch.as_tensor(action_scale, dtype=torch.float32).reshape(action_dim)
         self.register_buffer("action_scale", scale, persistent=False)  # not in checkpoints: it comes from the metadata
 
-    def forward(self, observations: Any, deterministic: bool = False,
-                noise: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, observations: Any, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
         """-> actions (B, A) in (-1, 1) (reparameterised, differentiable), log_prob (B,)."""
-        return self.from_features(self.trunk(observations), deterministic, noise)
+        return self.from_features(self.trunk(observations), deterministic)
 
-    def from_features(self, features: torch.Tensor, deterministic: bool = False,
-                      noise: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """The policy's heads on trunk ``features`` (B, F) -> actions (B, A), log_prob (B,). ``noise``
-        (B, A): the standard normal draws of the sample (default: drawn here, as ``rsample`` does)."""
+    def from_features(self, features: torch.Tensor, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """The policy's heads on trunk ``features`` (B, F) -> actions (B, A), log_prob (B,)."""
         mean = self.mean(features)
         normal = torch.distributions.Normal(mean, self.log_std(features).clamp(-20.0, 2.0).exp())
-        pre_tanh = mean if deterministic else normal.rsample() if noise is None else mean + noise * normal.scale
+        pre_tanh = mean if deterministic else normal.rsample()
         if self.action_scale is None:
             return torch.tanh(pre_tanh), squashed_gaussian_log_prob(pre_tanh, normal)
         return torch.tanh(pre_tanh), deepracer_squashed_log_prob(pre_tanh, normal, self.action_scale)

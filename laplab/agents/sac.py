@@ -13,10 +13,9 @@ the critic's loss alone and a gradient step runs one trunk backward pass instead
 keeps DeepRacer's shape (trunk, then the mean and log-std heads): the car and the exports see the same
 network. Vector models (STATE, lidar) keep separate actor and critic trunks, as rl_coach builds them.
 
-With two or more torch threads a gradient step runs as two independent streams
-(:mod:`laplab.agents.side_stream`): with separate trunks, the critic's half (its trunk passes,
-backward, optimizer step) on a second thread beside the actor's; with the shared trunk, each thread
-takes half of the minibatch and the halves' gradients are summed before the Adam steps.
+With separate trunks and two or more torch threads, a gradient step runs the critic's half (its
+trunk passes, backward, optimizer step) on a second thread while the calling thread runs the actor's
+half (:mod:`laplab.agents.side_stream`).
 """
 
 from __future__ import annotations
@@ -37,7 +36,7 @@ from laplab.agents.losses import sac_actor_loss, sac_critic_target
 from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, PolicyStep, SquashedGaussianActor,
                                     TwinQ, action_spec_from, has_convolutions, observation_to_tensor,
                                     set_compute_precision, twin_q_from_separate)
-from laplab.agents.ppo import limit_torch_threads, take_rows
+from laplab.agents.ppo import limit_torch_threads
 from laplab.agents.replay import ReplayBatch, ReplayBuffer
 from laplab.agents.side_stream import RunOnSide, SideStream, run_now
 
@@ -151,13 +150,13 @@ class SACLearner:
             torch._foreach_copy_(list(self.target_critic.parameters()), list(self.critic.parameters()))
         totals = torch.zeros(4, dtype=torch.float64)
         done = 0
-        stream = self._critic_stream.open() if self.device.type == "cpu" else contextlib.nullcontext(run_now)
-        with stream as side:
+        two_streams = not self.shared_trunk and self.device.type == "cpu"
+        with (self._critic_stream.open() if two_streams else contextlib.nullcontext(run_now)) as side:
             for _ in range(num_gradient_steps):
                 if should_stop is not None and should_stop():
                     break
                 batch = self.buffer.sample(hp.batch_size, self.rng)
-                totals += (self._shared_gradient_step(batch, side) if self.shared_trunk
+                totals += (self._shared_gradient_step(batch) if self.shared_trunk
                            else self._gradient_step(batch, side))
                 done += 1
                 if on_progress is not None:
@@ -206,58 +205,32 @@ class SACLearner:
         self.gradient_steps += 1
         return _step_stats(critic_loss, actor_loss, q1, log_probs)
 
-    def _shared_gradient_step(self, batch: ReplayBatch, side: RunOnSide = run_now) -> torch.Tensor:
+    def _shared_gradient_step(self, batch: ReplayBatch) -> torch.Tensor:
         """One step on one minibatch with the actor on the critic's trunk: the critic (trunk and
         heads) towards the soft Bellman target, the actor's heads on the trunk's features detached,
         against the critic's heads as they were before this step. The trunk runs forward three times
         (the minibatch with gradients, the next observations for the next actions and, as the target,
-        for their values) and backward once. Everything is per sample until the batch means, so with a
-        second thread (``side`` not :func:`run_now`) each thread takes half of the minibatch and the
-        halves' gradients are summed, in a fixed order, before both Adam steps: two independent streams
-        instead of two threads meeting at every operation. The policy's noise is drawn once, here."""
-        obs, next_obs, actions, rewards, terminated = self._tensors(batch)
-        size, action_dim = actions.shape
-        next_noise, new_noise = torch.randn(size, action_dim), torch.randn(size, action_dim)  # rsample's order
-        halves = [slice(0, size)] if side is run_now else [slice(0, size // 2), slice(size // 2, size)]
-        trained = [p for optimizer in (self.actor_optimizer, self.critic_optimizer)
-                   for group in optimizer.param_groups for p in group["params"]]
-
-        def part(rows: slice) -> tuple[tuple[torch.Tensor | None, ...], torch.Tensor]:
-            weight = (rows.stop - rows.start) / size  # the batch means as a weighted sum of the halves' means
-            critic_loss, actor_loss, q1, log_probs = self._shared_losses(
-                take_rows(obs, rows), take_rows(next_obs, rows), actions[rows], rewards[rows], terminated[rows],
-                next_noise[rows].to(self.device), new_noise[rows].to(self.device))
-            grads = torch.autograd.grad(weight * (critic_loss + actor_loss), trained, allow_unused=True)
-            return grads, weight * _step_stats(critic_loss, actor_loss, q1, log_probs)
-
-        second = side(lambda: part(halves[1])) if len(halves) == 2 else None
-        grads, stats = part(halves[0])
-        if second is not None:
-            more_grads, more_stats = second.result()
-            grads = [a if b is None else b if a is None else a + b for a, b in zip(grads, more_grads)]
-            stats = stats + more_stats
-        for parameter, grad in zip(trained, grads):
-            parameter.grad = grad
-        self.actor_optimizer.step()
-        self.critic_optimizer.step()
-        self.gradient_steps += 1
-        return stats
-
-    def _shared_losses(self, obs: Any, next_obs: Any, actions: torch.Tensor, rewards: torch.Tensor,
-                       terminated: torch.Tensor, next_noise: torch.Tensor, new_noise: torch.Tensor
-                       ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The shared-trunk step's critic loss, actor loss, Q1 (B,) and log-probabilities (B,) for some rows."""
+        for their values) and backward once, on one stream with all of torch's threads (splitting
+        the minibatch between two threads learned more slowly: BENCHMARKS.md, session 13)."""
         hp = self.hyperparameters
-        with torch.no_grad():  # grad mode is per thread
-            next_actions, next_log_probs = self.actor(next_obs, noise=next_noise)
+        obs, next_obs, actions, rewards, terminated = self._tensors(batch)
+        with torch.no_grad():
+            next_actions, next_log_probs = self.actor(next_obs)
             target = sac_critic_target(rewards, terminated, *self.target_critic(next_obs, next_actions),
                                        next_log_probs, hp.discount_factor, hp.sac_alpha)
         features = self.critic.trunk(obs)
         q1, q2 = self.critic.heads(features, actions)
         critic_loss = F.mse_loss(q1, target) + F.mse_loss(q2, target)
         detached = features.detach()
-        new_actions, log_probs = self.actor.from_features(detached, noise=new_noise)
-        return critic_loss, self._actor_loss(detached, new_actions, log_probs), q1, log_probs
+        new_actions, log_probs = self.actor.from_features(detached)
+        actor_loss = self._actor_loss(detached, new_actions, log_probs)
+        self.critic_optimizer.zero_grad(set_to_none=True)
+        self.actor_optimizer.zero_grad(set_to_none=True)
+        (critic_loss + actor_loss).backward()  # the two losses share no parameter
+        self.actor_optimizer.step()
+        self.critic_optimizer.step()
+        self.gradient_steps += 1
+        return _step_stats(critic_loss, actor_loss, q1, log_probs)
 
     def _tensors(self, batch: ReplayBatch) -> tuple[Any, Any, torch.Tensor, torch.Tensor, torch.Tensor]:
         """A minibatch on the learner's device: observations, next observations, actions, rewards,
