@@ -123,14 +123,14 @@ def main() -> None:
     parser.add_argument("--device", default="cpu", help="the learner's torch device: cpu or cuda")
     parser.add_argument("--ray-address", default=None, help="join this Ray cluster (default: a local Ray)")
     args = parser.parse_args()
-    from laplab.cluster.launch import resolve_device
+    from laplab.cluster.launch import resolve_device, uses_ray
     from laplab.train.errors import JobError
     try:
         device = resolve_device(args.device)
     except JobError as error:
         raise SystemExit(f"time_to_lap.py: {error}") from None
     label = f"camera {args.console}" if args.console else args.sensor
-    if args.workers > 1 or args.ray_address:
+    if uses_ray(args.workers, args.ray_address):
         label += f" x{args.workers}"
     if device != "cpu":
         label += f" {device}"

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -48,13 +47,10 @@ def camera_config(algorithm: str, meta: dict) -> TrainConfig:
     return replace(TrainConfig(), hyperparameters=hyper, model_metadata=metadata, max_time_s=120, max_episodes=4)
 
 
-def frames(config: TrainConfig, count: int = 6) -> np.ndarray | dict:
-    """``count`` random camera observations of the job's observation space."""
-    space, rng = config.spec.observation_space, np.random.default_rng(0)
-    draw = lambda box: rng.integers(0, 256, (count, *box.shape)).astype(box.dtype)  # noqa: E731
-    if isinstance(space, gym.spaces.Dict):
-        return {key: draw(box) for key, box in space.spaces.items()}
-    return draw(space)
+def frames(config: TrainConfig, count: int = 6) -> np.ndarray:
+    """``count`` random front-camera observations of the job's observation space (one Box)."""
+    space = config.spec.observation_space
+    return np.random.default_rng(0).integers(0, 256, (count, *space.shape)).astype(space.dtype)
 
 
 def tensors(state) -> list[torch.Tensor]:
