@@ -326,7 +326,8 @@ class PPOLearner:
             policy_loss = clipped_surrogate_loss(log_probs, old_log_probs, advantages, CLIP_EPSILON)
             (policy_loss + entropy_bonus(entropy, hp.beta_entropy)).backward()
             critic_loss = value_done.result()
-        self.optimizer.step()
+        with value_side.all_threads():  # both halves joined: the fused Adam step on every thread
+            self.optimizer.step()
         approx_kl, clip_fraction = policy_change_stats(log_probs, old_log_probs, CLIP_EPSILON)
         return np.array([policy_loss.item(), critic_loss.item(), entropy.mean().item(), approx_kl, clip_fraction])
 

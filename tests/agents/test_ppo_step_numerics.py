@@ -92,3 +92,15 @@ def test_a_failure_on_the_value_thread_reaches_the_caller_and_restores_the_threa
     hook.remove()
     assert learner.update(rollout)["num_minibatches"] == 6  # the thread still serves the next update
     assert copy.deepcopy(learner).update(rollout)["num_minibatches"] == 6  # a copy makes its own thread
+
+
+def test_the_adam_step_runs_on_all_of_the_learners_threads(restore_torch_threads):
+    """The two halves run on one thread each; once they joined, the fused Adam step gets both (it is
+    memory-bound and took twice as long on one)."""
+    learner = PPOLearner(CAMERA, CONTINUOUS, Hyperparameters(batch_size=32, num_epochs=3), seed=0, num_threads=2)
+    rollout = _rollout(learner, np.random.default_rng(2))
+    seen = []
+    learner.optimizer.register_step_pre_hook(lambda *_: seen.append(torch.get_num_threads()))
+    learner.update(rollout)
+    assert seen == [2] * 6
+    assert torch.get_num_threads() == 2
