@@ -13,7 +13,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from laplab.console.auth import current_user, load_secret
-from laplab.console.service import ConsoleService, default_workers
+from laplab.console.service import ConsoleService, default_workers, threads_per_job
 from laplab.jobs.db import JobStore, User, laplab_home
 from laplab.jobs.runner import LocalProcessRunner
 from laplab.jobs.confinement import JobLimits
@@ -44,8 +44,9 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
     home.mkdir(parents=True, exist_ok=True)
     store = JobStore()
     first_token = ensure_admin(store)
-    runner = LocalProcessRunner(limits, sandbox=sandbox, cluster=cluster)
-    service = ConsoleService(store, runner, workers or default_workers())
+    workers = workers or default_workers()
+    runner = LocalProcessRunner(limits, sandbox=sandbox, cluster=cluster, threads_per_job=threads_per_job(workers))
+    service = ConsoleService(store, runner, workers)
     interval = tick_s or TICK_S
 
     @contextlib.asynccontextmanager

@@ -136,10 +136,14 @@ def write_spec(job: Job, cluster: dict | None = None) -> Path:
 class LocalProcessRunner:
     """Each job a confined child process of the server (bubblewrap when it works, else limits only)."""
 
-    def __init__(self, limits: JobLimits = JobLimits(), sandbox: bool | None = None, cluster=None):
+    def __init__(self, limits: JobLimits = JobLimits(), sandbox: bool | None = None, cluster=None,
+                 threads_per_job: int = 1):
         self.limits = limits
         self.sandbox = bubblewrap_works() if sandbox is None else sandbox
         self.cluster = cluster  # a laplab.cluster.console.RayCluster: training jobs' workers run there
+        # torch threads of a job's camera learner (vector networks use one whatever this says); the
+        # server's own $OMP_NUM_THREADS, when set, wins
+        self.threads_per_job = max(1, int(threads_per_job))
         self._processes: dict[int, subprocess.Popen] = {}
         self._deadlines: dict[int, tuple[float, float]] = {}  # job id -> (monotonic deadline, limit s)
         self._overtime: dict[int, str] = {}
@@ -150,11 +154,7 @@ class LocalProcessRunner:
         write_spec(job, self.cluster.to_spec() if on_cluster else None)
         folder = job_folder(job.id)
         inside = f"{SANDBOX_HOME}/job" if self.sandbox else str(folder)
-        home = SANDBOX_HOME if self.sandbox else str(laplab_home())
-        env = clean_environment({"LAPLAB_HOME": home,
-                                 "NUMBA_CACHE_DIR": f"{home}/cache/numba" if self.sandbox
-                                 else str(owner_cache(job.owner) / "numba"),
-                                 **(self.cluster.job_environment() if on_cluster else {})}, sandboxed=self.sandbox)
+        env = self.environment(job, on_cluster)
         mounts = job_mounts(job)
         if on_cluster:  # the network, to reach the cluster; the same files as any job
             mounts = replace(mounts, network=True)
@@ -164,6 +164,16 @@ class LocalProcessRunner:
         limit = wall_limit_s(job, self.limits.wall_margin_s)
         self._deadlines[job.id] = (time.monotonic() + limit, limit)
         return process.pid
+
+    def environment(self, job: Job, on_cluster: bool = False) -> dict[str, str]:
+        """The variables a job's process sees (:func:`clean_environment`, plus its home, numba cache,
+        torch threads and, on a Ray cluster, the cluster's address)."""
+        home = SANDBOX_HOME if self.sandbox else str(laplab_home())
+        return clean_environment({"LAPLAB_HOME": home,
+                                  "NUMBA_CACHE_DIR": f"{home}/cache/numba" if self.sandbox
+                                  else str(owner_cache(job.owner) / "numba"),
+                                  "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS") or str(self.threads_per_job),
+                                  **(self.cluster.job_environment() if on_cluster else {})}, sandboxed=self.sandbox)
 
     def _limits_for(self, job: Job) -> JobLimits:
         """CPU time: the job's wall budget on every core, plus a margin for start-up and evaluation."""
