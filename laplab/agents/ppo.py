@@ -29,7 +29,7 @@ from laplab.agents.losses import (clipped_surrogate_loss, compute_gae, entropy_b
                                   policy_change_stats, value_loss)
 from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, ActorCritic, PolicyStep,
                                     action_spec_from, has_convolutions, observation_to_tensor,
-                                    set_compute_precision)
+                                    flush_denormals, set_compute_precision)
 from laplab.agents.side_stream import RunOnSide, SideStream, run_now
 
 CLIP_EPSILON = 0.2
@@ -147,6 +147,7 @@ class PPOLearner:
                  network_name: str = DEFAULT_NETWORK, device: str = "cpu",
                  seed: int | None = None, num_threads: int | None = None, precision: str = "float32"):
         limit_torch_threads(num_threads)
+        flush_denormals()  # before any torch work: the threads torch starts inherit it
         if seed is not None:
             torch.manual_seed(seed)
         self.hyperparameters = hyperparameters

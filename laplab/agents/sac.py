@@ -35,7 +35,7 @@ from laplab.agents.hyperparameters import Hyperparameters
 from laplab.agents.losses import sac_actor_loss, sac_critic_target
 from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, PolicyStep, SquashedGaussianActor,
                                     TwinQ, action_spec_from, has_convolutions, observation_to_tensor,
-                                    set_compute_precision, twin_q_from_separate)
+                                    flush_denormals, set_compute_precision, twin_q_from_separate)
 from laplab.agents.ppo import limit_torch_threads
 from laplab.agents.replay import ReplayBatch, ReplayBuffer
 from laplab.agents.side_stream import RunOnSide, SideStream, run_now
@@ -65,6 +65,7 @@ class SACLearner:
                  num_threads: int | None = None, precision: str = "float32", shared_trunk: bool | None = None,
                  action_scale: Any = None):
         limit_torch_threads(num_threads)
+        flush_denormals()  # before any torch work: the threads torch starts inherit it
         if seed is not None:
             torch.manual_seed(seed)
         self.action_spec: ActionSpec = action_spec_from(action_space_spec)

@@ -84,6 +84,7 @@ class SideStream:
         def on_side(fn: Callable[[], Any]) -> Any:
             if torch.get_num_threads() != side_threads:  # a thread's own count (OpenMP), set once
                 torch.set_num_threads(side_threads)
+                torch.set_flush_denormal(True)  # inherited from the learner's thread; per thread too
             return fn()
 
         torch.set_num_threads(threads - side_threads)
