@@ -98,11 +98,11 @@ def build_learner(spec: ModelSpec, hyperparameters: Hyperparameters, seed: int |
 
     Small vector networks run fastest on one thread (more threads only add synchronisation, and
     collapse when the cores are shared), so ``num_threads`` None means 1 for them; camera networks
-    use every core and keep freed memory for reuse (see :func:`laplab.agents.ppo.keep_freed_memory`).
+    use every core and keep freed memory for reuse (see :func:`laplab.agents.torch_runtime.keep_freed_memory`).
     """
     cls = learner_class(spec.algorithm)
     if spec.camera is not None:
-        from laplab.agents.ppo import keep_freed_memory
+        from laplab.agents.torch_runtime import keep_freed_memory
         keep_freed_memory()
     threads = num_threads or (1 if spec.camera is None else None)
     extra = {}

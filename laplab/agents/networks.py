@@ -204,41 +204,6 @@ def resolve_precision(precision: str, module: nn.Module) -> str:
     return precision
 
 
-def flush_denormals() -> bool:
-    """Flush denormal floats (below 1.2e-38) to zero, as TensorFlow, DeepRacer's framework, computes on
-    the CPU: in this thread, in the OpenMP worker threads it already has and in every thread started
-    from it later (x86's FTZ/DAZ flags are per thread; a new thread inherits its creator's). Trained
-    camera networks carry denormals in their gradients and Adam's moments, which made gradient steps
-    ~1.3x slower late in a training (BENCHMARKS.md, session 14). Returns whether the CPU has the flags."""
-    supported = bool(torch.set_flush_denormal(True))
-    if supported:
-        _flush_denormals_in_openmp_workers()
-    return supported
-
-
-def _flush_denormals_in_openmp_workers() -> None:
-    """The flags in the worker threads of this thread's OpenMP team, which exist before any learner:
-    numba's parallel simulator shares torch's libgomp and starts the team on its first step (those
-    threads took the flags the thread had then). Each runs ``torch.set_flush_denormal`` once, in a
-    parallel region of the libgomp torch uses; nothing happens where torch has no libgomp."""
-    import ctypes
-    import os
-    library = os.path.join(os.path.dirname(torch.__file__), "lib", "libgomp.so.1")
-    if not os.path.exists(library):
-        return
-    try:
-        gomp = ctypes.CDLL(library)  # loaded already by torch: the same library and its thread pools
-        body_type = ctypes.CFUNCTYPE(None, ctypes.c_void_p)
-        parallel = gomp.GOMP_parallel  # void GOMP_parallel(void (*fn)(void *), void *data, unsigned n, unsigned flags)
-        parallel.argtypes = (body_type, ctypes.c_void_p, ctypes.c_uint, ctypes.c_uint)
-        parallel.restype = None
-    except (OSError, AttributeError):
-        return
-    body = body_type(lambda _: torch.set_flush_denormal(True))
-    threads = max(os.cpu_count() or 1, torch.get_num_threads())
-    parallel(body, None, threads, 0)
-
-
 def set_compute_precision(module: nn.Module, precision: str) -> str:
     """Run every observation trunk inside ``module`` in ``precision`` (mixed precision: the weights,
     gradients, optimizer and heads stay float32; trunk features come back as float32). Returns

@@ -16,7 +16,6 @@ random action with probability epsilon (decaying linearly from 1 to ``e_greedy_v
 from __future__ import annotations
 
 import contextlib
-import os
 from dataclasses import asdict
 from typing import Any, Callable, ContextManager, Mapping, NamedTuple
 
@@ -29,8 +28,9 @@ from laplab.agents.losses import (clipped_surrogate_loss, compute_gae, entropy_b
                                   policy_change_stats, value_loss)
 from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, ActorCritic, PolicyStep,
                                     action_spec_from, has_convolutions, observation_to_tensor,
-                                    flush_denormals, set_compute_precision)
+                                    set_compute_precision)
 from laplab.agents.side_stream import RunOnSide, SideStream, run_now
+from laplab.agents.torch_runtime import flush_denormals, limit_torch_threads
 
 CLIP_EPSILON = 0.2
 GAE_LAMBDA = 0.95
@@ -98,38 +98,6 @@ def take_rows(observations: Any, index: np.ndarray | slice) -> Any:
     if isinstance(observations, Mapping):
         return {key: value[index] for key, value in observations.items()}
     return observations[index]
-
-
-def limit_torch_threads(num_threads: int | None = None) -> None:
-    """Set torch's intra-op threads to ``num_threads``, or (None) to the CPUs this process may use,
-    at most ``$OMP_NUM_THREADS`` when set (so learners in worker processes do not oversubscribe the
-    machine, and a camera learner built after a one-thread vector learner in the same process gets
-    its cores back)."""
-    available = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    omp = os.environ.get("OMP_NUM_THREADS", "")
-    if omp.isdigit() and int(omp) > 0:
-        available = min(available, int(omp))
-    torch.set_num_threads(max(1, int(num_threads)) if num_threads is not None else available)
-
-
-def keep_freed_memory() -> bool:
-    """Ask glibc's malloc to keep freed memory for reuse rather than hand it back to the OS.
-
-    A camera network's minibatch allocates and frees tensors of tens of MB (the 11,264 x 512 dense
-    weights cast to bfloat16, their gradients); glibc maps each afresh and page-faults through it,
-    which made a quarter of a bfloat16 minibatch. Keeping the memory makes those minibatches ~15-25 %
-    faster (bench/time_to_lap.py --sensor FRONT_FACING_CAMERA). Process-wide; returns whether it took
-    (False off glibc, e.g. macOS, where nothing changes)."""
-    import ctypes
-    import ctypes.util
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
-        return False
-    m_trim_threshold, m_top_pad, m_mmap_threshold = -1, -2, -3
-    return all(mallopt(option, value) == 1 for option, value in (
-        (m_mmap_threshold, 1 << 30), (m_trim_threshold, 1 << 30), (m_top_pad, 64 << 20)))
 
 
 class PPOLearner:

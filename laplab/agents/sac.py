@@ -35,10 +35,10 @@ from laplab.agents.hyperparameters import Hyperparameters
 from laplab.agents.losses import sac_actor_loss, sac_critic_target
 from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, PolicyStep, SquashedGaussianActor,
                                     TwinQ, action_spec_from, has_convolutions, observation_to_tensor,
-                                    flush_denormals, set_compute_precision, twin_q_from_separate)
-from laplab.agents.ppo import limit_torch_threads
+                                    set_compute_precision, twin_q_from_separate)
 from laplab.agents.replay import ReplayBatch, ReplayBuffer
 from laplab.agents.side_stream import RunOnSide, SideStream, run_now
+from laplab.agents.torch_runtime import flush_denormals, limit_torch_threads
 
 
 

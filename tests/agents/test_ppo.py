@@ -150,7 +150,7 @@ def test_bfloat16_learner_learns_the_bandit_and_acts_without_values():
 def test_keep_freed_memory_takes_on_glibc():
     import sys
 
-    from laplab.agents.ppo import keep_freed_memory
+    from laplab.agents.torch_runtime import keep_freed_memory
     took = keep_freed_memory()
     assert isinstance(took, bool)
     if sys.platform == "linux" and "glibc" in " ".join(__import__("platform").libc_ver()):

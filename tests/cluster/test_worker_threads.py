@@ -49,7 +49,7 @@ def test_a_learner_without_a_thread_count_gets_the_processs_cores_whatever_came_
     bench) gets its cores back; ``$OMP_NUM_THREADS`` still caps it (console jobs set 1)."""
     import os
 
-    from laplab.agents.ppo import limit_torch_threads
+    from laplab.agents.torch_runtime import limit_torch_threads
     cores = len(os.sched_getaffinity(0))
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     limit_torch_threads(1)

@@ -27,7 +27,7 @@ def test_a_job_learns_on_its_share_of_the_cores(monkeypatch, tmp_path):
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     env = LocalProcessRunner(sandbox=False, threads_per_job=2).environment(_job())
     assert env["OMP_NUM_THREADS"] == "2"
-    probe = ("import torch; from laplab.agents.ppo import limit_torch_threads; limit_torch_threads(); "
+    probe = ("import torch; from laplab.agents.torch_runtime import limit_torch_threads; limit_torch_threads(); "
              "print(torch.get_num_threads())")
     threads = subprocess.run([sys.executable, "-c", probe], env={**env, "PYTHONPATH": os.pathsep.join(sys.path)},
                              capture_output=True, text=True, timeout=120, check=True).stdout.split()[-1]
