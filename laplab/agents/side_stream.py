@@ -17,7 +17,6 @@ from typing import Any, Callable, Iterator
 import torch
 
 
-
 def _finished(fn: Callable[[], Any]) -> Future:
     """``fn()`` run at once, as a finished ``Future``."""
     future: Future = Future()

@@ -69,5 +69,6 @@ def _flush_denormals_in_openmp_workers() -> None:
     except (OSError, AttributeError):
         return
     body = body_type(lambda _: torch.set_flush_denormal(True))
-    threads = max(os.cpu_count() or 1, torch.get_num_threads())
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    threads = max(cores, torch.get_num_threads())  # the most either runtime's team asks of this thread
     parallel(body, None, threads, 0)

@@ -141,8 +141,8 @@ class LocalProcessRunner:
         self.limits = limits
         self.sandbox = bubblewrap_works() if sandbox is None else sandbox
         self.cluster = cluster  # a laplab.cluster.console.RayCluster: training jobs' workers run there
-        # torch threads of a job's camera learner (vector networks use one whatever this says); the
-        # server's own $OMP_NUM_THREADS, when set, wins
+        # a job's OpenMP threads: its camera learner's torch threads and its simulator's numba threads
+        # (vector networks use one torch thread whatever this says); the server's $OMP_NUM_THREADS wins
         self.threads_per_job = max(1, int(threads_per_job))
         self._processes: dict[int, subprocess.Popen] = {}
         self._deadlines: dict[int, tuple[float, float]] = {}  # job id -> (monotonic deadline, limit s)
