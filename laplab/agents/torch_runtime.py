@@ -9,12 +9,17 @@ import os
 import torch
 
 
+def usable_cores() -> int:
+    """The CPUs this process may run on (its affinity where the OS tells it, else the machine's)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def limit_torch_threads(num_threads: int | None = None) -> None:
     """Set torch's intra-op threads to ``num_threads``, or (None) to the CPUs this process may use,
     at most ``$OMP_NUM_THREADS`` when set (so learners in worker processes do not oversubscribe the
     machine, and a camera learner built after a one-thread vector learner in the same process gets
     its cores back)."""
-    available = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    available = usable_cores()
     omp = os.environ.get("OMP_NUM_THREADS", "")
     if omp.isdigit() and int(omp) > 0:
         available = min(available, int(omp))
@@ -69,6 +74,5 @@ def _flush_denormals_in_openmp_workers() -> None:
     except (OSError, AttributeError):
         return
     body = body_type(lambda _: torch.set_flush_denormal(True))
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    threads = max(cores, torch.get_num_threads())  # the most either runtime's team asks of this thread
+    threads = max(usable_cores(), torch.get_num_threads())  # the most either runtime's team asks of this thread
     parallel(body, None, threads, 0)

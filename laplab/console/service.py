@@ -375,6 +375,7 @@ def default_workers() -> int:
 
 
 def threads_per_job(workers: int) -> int:
-    """Each of ``workers`` jobs at a time gets its share of the cores for a camera learner's torch
-    threads (a camera job spends ~85 % of its time learning, ~1.8x faster on two threads than one)."""
+    """Each of ``workers`` jobs at a time gets its share of the cores as OpenMP threads for its camera
+    learner and simulator (a camera job spends ~85 % of its time learning, ~1.8x faster on two threads
+    than one)."""
     return max(1, (os.cpu_count() or 1) // max(1, int(workers)))
