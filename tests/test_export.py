@@ -18,7 +18,8 @@ import torch
 pytest.importorskip("onnx")
 onnxruntime = pytest.importorskip("onnxruntime")
 
-from laplab.agents.networks import ActionSpec, ActorCritic, SquashedGaussianActor, observation_to_tensor  # noqa: E402
+from laplab.agents.networks import ActionSpec, ActorCritic, observation_to_tensor  # noqa: E402
+from laplab.agents.sac_networks import SquashedGaussianActor  # noqa: E402
 from laplab.agents.onnx_export import (ONNX_OPSET, graph_feed, graph_inputs, onnx_parity_error,  # noqa: E402
                                        policy_to_onnx, random_observations, torch_policy_output)
 from laplab.cli import main  # noqa: E402

@@ -8,6 +8,7 @@ the ``STATE`` vector embedder (tanh). Convolutions use no padding ("valid"), as 
 Observations are a tensor (a gymnasium ``Box``) or a dict ``{sensor_name: tensor}`` (a ``Dict``
 space keyed by DeepRacer sensor names). Camera images are channels-first ``(B, C, H, W)`` with
 ``C = stack_size * cameras`` (STEREO_CAMERAS: 2 per frame); ``uint8`` images are scaled by 1/255.
+PPO's actor-critic is here; SAC's actor and twin critic are in :mod:`laplab.agents.sac_networks`.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ from typing import Any, Mapping
 import gymnasium as gym
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from laplab.agents.hyperparameters import PRECISIONS
@@ -88,19 +88,9 @@ def action_spec_from(spec: Any) -> ActionSpec:
     )
 
 
-def _frozen_dense(layers: nn.Module, x: torch.Tensor) -> torch.Tensor:
-    """``layers`` (nested Sequentials of Linear and ReLU) applied to ``x`` with detached weights."""
-    for layer in layers.modules():
-        if isinstance(layer, nn.Linear):
-            x = F.linear(x, layer.weight.detach(), None if layer.bias is None else layer.bias.detach())
-        elif isinstance(layer, nn.ReLU):
-            x = F.relu(x)
-        elif not isinstance(layer, nn.Sequential):
-            raise TypeError(f"_frozen_dense cannot run a {type(layer).__name__}")
-    return x
 
-
-def _dense_stack(in_dim: int, sizes: tuple[int, ...], activation: type[nn.Module]) -> nn.Sequential:
+def dense_stack(in_dim: int, sizes: tuple[int, ...], activation: type[nn.Module]) -> nn.Sequential:
+    """Dense layers of ``sizes`` from ``in_dim`` inputs, each followed by ``activation``."""
     layers: list[nn.Module] = []
     for size in sizes:
         layers += [nn.Linear(in_dim, size), activation()]
@@ -133,7 +123,7 @@ class CameraEmbedder(nn.Module):
         # Channels-last convolutions run ~1.4x faster on CPU (oneDNN); Flatten keeps the logical NCHW
         # order, so the dense layer, checkpoints and ONNX graphs are the same as with contiguous weights.
         self.convolutions = nn.Sequential(*layers).to(memory_format=torch.channels_last)
-        self.dense = _dense_stack(channels * height * width, scheme.camera_dense, nn.ReLU)
+        self.dense = dense_stack(channels * height * width, scheme.camera_dense, nn.ReLU)
         self.output_dim = scheme.camera_dense[-1] if scheme.camera_dense else channels * height * width
         self.scale = scale
 
@@ -147,7 +137,7 @@ class VectorEmbedder(nn.Module):
 
     def __init__(self, in_dim: int, sizes: tuple[int, ...], activation: type[nn.Module]):
         super().__init__()
-        self.dense = _dense_stack(in_dim, sizes, activation)
+        self.dense = dense_stack(in_dim, sizes, activation)
         self.output_dim = sizes[-1]
 
     def forward(self, vectors: torch.Tensor) -> torch.Tensor:
@@ -163,7 +153,7 @@ class Embedder(nn.Module):
         self.sensors = nn.ModuleDict(embedders)
         self.sensor_names = sorted(embedders)
         concatenated = sum(module.output_dim for module in embedders.values())
-        self.middleware = _dense_stack(concatenated, middleware, nn.ReLU)
+        self.middleware = dense_stack(concatenated, middleware, nn.ReLU)
         self.output_dim = middleware[-1] if middleware else concatenated
         self.single_box = single_box
         self.compute_dtype: torch.dtype | None = None  # see set_compute_precision
@@ -351,99 +341,3 @@ class ActorCritic(nn.Module):
             action = distribution.sample()
         env_action = action if self.action_spec.discrete else action.clamp(-1.0, 1.0)
         return PolicyStep(action, env_action, distribution.log_prob(action), values)
-
-
-def squashed_gaussian_log_prob(pre_tanh: torch.Tensor, normal: torch.distributions.Normal) -> torch.Tensor:
-    """log-density (B,) of ``tanh(pre_tanh)`` where ``pre_tanh ~ normal`` (both (B, A)):
-    ``log N(u) - sum log(1 - tanh(u)^2)``, the correction written in a stable form."""
-    correction = 2.0 * (math.log(2.0) - pre_tanh - nn.functional.softplus(-2.0 * pre_tanh))
-    return (normal.log_prob(pre_tanh) - correction).sum(-1)
-
-
-FLOAT32_EPS = float(np.finfo(np.float32).eps)
-
-
-def deepracer_squashed_log_prob(pre_tanh: torch.Tensor, normal: torch.distributions.Normal,
-                                action_scale: torch.Tensor) -> torch.Tensor:
-    """DeepRacer's SAC log-probability (B,) of the squashed action (deepracer-simapp's ``SACPolicyHead``
-    with ``rescale_action_values``): ``log N(u) - sum log(clip(scale * (1 - tanh(u)^2) + eps, 1e-10, 1))``.
-    ``action_scale`` (A,) is half of each action's range in the model's units (30 for steering of
-    -30..30 degrees, 1.5 for 1..4 m/s). The clip at 1 drops the correction, and with it its pull
-    towards the middle of the range, wherever ``scale * (1 - tanh(u)^2) >= 1``: for a 30-degree
-    steering range everywhere but the last 2 % of it."""
-    squashed = torch.tanh(pre_tanh)
-    jacobian = (action_scale * (1.0 - squashed * squashed) + FLOAT32_EPS).clamp(1e-10, 1.0)
-    return (normal.log_prob(pre_tanh) - torch.log(jacobian)).sum(-1)
-
-
-class SquashedGaussianActor(nn.Module):
-    """SAC's policy: a state-dependent Gaussian squashed by tanh into (-1, 1)^A.
-
-    ``action_scale`` (A,) switches the log-probability to DeepRacer's (:func:`deepracer_squashed_log_prob`);
-    without it the exact change of variables into (-1, 1)^A. Either way the actions are the same."""
-
-    def __init__(self, observation_space: gym.spaces.Space, action_dim: int, network_name: str = DEFAULT_NETWORK,
-                 action_scale: Any = None):
-        super().__init__()
-        self.trunk = build_embedder(observation_space, network_name)
-        self.mean = nn.Linear(self.trunk.output_dim, action_dim)
-        self.log_std = nn.Linear(self.trunk.output_dim, action_dim)
-        scale = None if action_scale is None else torch.as_tensor(action_scale, dtype=torch.float32).reshape(action_dim)
-        self.register_buffer("action_scale", scale, persistent=False)  # not in checkpoints: it comes from the metadata
-
-    def forward(self, observations: Any, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
-        """-> actions (B, A) in (-1, 1) (reparameterised, differentiable), log_prob (B,)."""
-        return self.from_features(self.trunk(observations), deterministic)
-
-    def from_features(self, features: torch.Tensor, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
-        """The policy's heads on trunk ``features`` (B, F) -> actions (B, A), log_prob (B,)."""
-        mean = self.mean(features)
-        normal = torch.distributions.Normal(mean, self.log_std(features).clamp(-20.0, 2.0).exp())
-        pre_tanh = mean if deterministic else normal.rsample()
-        if self.action_scale is None:
-            return torch.tanh(pre_tanh), squashed_gaussian_log_prob(pre_tanh, normal)
-        return torch.tanh(pre_tanh), deepracer_squashed_log_prob(pre_tanh, normal, self.action_scale)
-
-
-class TwinQ(nn.Module):
-    """SAC's twin Q(s, a) (clipped double-Q) as rl_coach's ``SACQHead`` builds it: one observation
-    trunk (embedders + middleware) whose features, concatenated with the action, feed two
-    independent dense 256, 256, 1 heads. The trunk runs once for both heads."""
-
-    def __init__(self, observation_space: gym.spaces.Space, action_dim: int, network_name: str = DEFAULT_NETWORK):
-        super().__init__()
-        self.trunk = build_embedder(observation_space, network_name)
-        width = self.trunk.output_dim + action_dim
-        self.q1 = nn.Sequential(_dense_stack(width, (256, 256), nn.ReLU), nn.Linear(256, 1))
-        self.q2 = nn.Sequential(_dense_stack(width, (256, 256), nn.ReLU), nn.Linear(256, 1))
-
-    def heads(self, features: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Both heads on trunk ``features`` (B, F) and ``actions`` (B, A) -> (q1 (B,), q2 (B,))."""
-        joined = torch.cat([features, actions], dim=-1)
-        return self.q1(joined).squeeze(-1), self.q2(joined).squeeze(-1)
-
-    def frozen_heads(self, features: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``heads`` with their weights held fixed: gradients reach ``actions`` (and ``features``), never
-        the weights. Safe on several threads at once: the modules are not touched (no ``requires_grad``
-        switching, no parameter swapping as ``torch.func.functional_call`` does)."""
-        joined = torch.cat([features, actions], dim=-1)
-        return _frozen_dense(self.q1, joined).squeeze(-1), _frozen_dense(self.q2, joined).squeeze(-1)
-
-    def forward(self, observations: Any, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """-> (q1 (B,), q2 (B,))."""
-        return self.heads(self.trunk(observations), actions)
-
-
-def twin_q_from_separate(state: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    """A :class:`TwinQ` state dict from one of laplab's older layout (``q1.trunk``, ``q1.head``,
-    ``q2.trunk``, ``q2.head``: a trunk per head): the shared trunk takes q1's trunk, each head
-    keeps its dense layers (q2's own trunk is dropped). States of the current layout pass through."""
-    if not any(key.startswith("q1.trunk.") for key in state):
-        return dict(state)
-    out = {}
-    for key, value in state.items():
-        if key.startswith("q1.trunk."):
-            out["trunk." + key[len("q1.trunk."):]] = value
-        elif key.startswith(("q1.head.", "q2.head.")):
-            out[key[:2] + key[len("q1.head"):]] = value
-    return out

@@ -27,7 +27,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from laplab.agents.networks import CAMERA_SENSORS, ActorCritic, SquashedGaussianActor
+from laplab.agents.networks import CAMERA_SENSORS, ActorCritic
+from laplab.agents.sac_networks import SquashedGaussianActor
 from laplab.env.spec import ModelSpec
 
 ONNX_OPSET = 17

@@ -33,10 +33,10 @@ import torch.nn.functional as F
 
 from laplab.agents.hyperparameters import Hyperparameters
 from laplab.agents.losses import sac_actor_loss, sac_critic_target
-from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, PolicyStep, SquashedGaussianActor,
-                                    TwinQ, action_spec_from, has_convolutions, observation_to_tensor,
-                                    set_compute_precision, twin_q_from_separate)
+from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, PolicyStep, action_spec_from, has_convolutions,
+                                    observation_to_tensor, set_compute_precision)
 from laplab.agents.replay import ReplayBatch, ReplayBuffer
+from laplab.agents.sac_networks import SquashedGaussianActor, TwinQ, twin_q_from_separate
 from laplab.agents.side_stream import RunOnSide, SideStream, run_now
 from laplab.agents.torch_runtime import flush_denormals, limit_torch_threads
 
@@ -51,7 +51,7 @@ class SACLearner:
     takes half of them. ``shared_trunk``: the actor on the critic's trunk (default: camera models);
     a loaded checkpoint's own layout wins over it. ``action_scale`` (A,): half of each action's range
     in the model's units (steering degrees, m/s); with it the entropy term uses DeepRacer's
-    log-probability (:func:`laplab.agents.networks.deepracer_squashed_log_prob`), which a training
+    log-probability (:func:`laplab.agents.sac_networks.deepracer_squashed_log_prob`), which a training
     job always gives.
     """
 
@@ -149,7 +149,7 @@ class SACLearner:
             return nan
         with torch.no_grad():  # the iteration's target: the critic as learning starts (in place)
             torch._foreach_copy_(list(self.target_critic.parameters()), list(self.critic.parameters()))
-        totals = torch.zeros(4, dtype=torch.float64)
+        totals = torch.zeros(4, dtype=torch.float64, device=self.device)  # on the GPU too: no sync per step
         done = 0
         two_streams = not self.shared_trunk and self.device.type == "cpu"
         with (self._critic_stream.open() if two_streams else contextlib.nullcontext(run_now)) as side:

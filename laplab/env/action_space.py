@@ -65,7 +65,7 @@ class ActionSpace:
 
     def half_ranges(self) -> tuple[float, float]:
         """Continuous: half of the steering range (degrees) and of the speed range (m/s), the scales of
-        DeepRacer's SAC log-probability (:func:`laplab.agents.networks.deepracer_squashed_log_prob`)."""
+        DeepRacer's SAC log-probability (:func:`laplab.agents.sac_networks.deepracer_squashed_log_prob`)."""
         if self.is_discrete:
             raise ActionSpaceError("a discrete action space has no ranges")
         return 0.5 * (self.steering[1] - self.steering[0]), 0.5 * (self.speed[1] - self.speed[0])

@@ -118,7 +118,8 @@ def policy_layers(network: Any, observation_space: Any, sensors: Sequence[str]) 
     """The layers of a laplab PPO ``ActorCritic`` or SAC ``SquashedGaussianActor`` trained on
     ``observation_space`` (a Box for one sensor, a Dict keyed by sensor names); ``sensors`` is
     model_metadata.json's sensor list (it names the single sensor of a Box space)."""
-    from laplab.agents.networks import ActorCritic, SquashedGaussianActor
+    from laplab.agents.networks import ActorCritic
+    from laplab.agents.sac_networks import SquashedGaussianActor
 
     log_std, log_std_head = None, None
     if isinstance(network, ActorCritic):
@@ -174,7 +175,8 @@ def reference_output(network: Any, observations: Any, raw: bool = True) -> np.nd
     the Gaussian mean (B, 2) (``raw``; else clipped to [-1, 1] as laplab drives); SAC tanh(mean)."""
     import torch
 
-    from laplab.agents.networks import SquashedGaussianActor, observation_to_tensor
+    from laplab.agents.networks import observation_to_tensor
+    from laplab.agents.sac_networks import SquashedGaussianActor
 
     tensors = observation_to_tensor(observations, "cpu")
     with torch.no_grad():

@@ -7,9 +7,10 @@ import torch
 from torch import nn
 
 from laplab.agents import networks
-from laplab.agents.networks import (ActionSpec, ActorCritic, CameraEmbedder, SquashedGaussianActor, TwinQ,
-                                    action_spec_from, build_embedder, resolve_precision, set_compute_precision,
-                                    deepracer_squashed_log_prob, squashed_gaussian_log_prob)
+from laplab.agents.networks import (ActionSpec, ActorCritic, CameraEmbedder, action_spec_from, build_embedder,
+                                    resolve_precision, set_compute_precision)
+from laplab.agents.sac_networks import (SquashedGaussianActor, TwinQ, deepracer_squashed_log_prob,
+                                        squashed_gaussian_log_prob)
 
 CAMERA = gym.spaces.Box(0, 255, (1, 120, 160), np.uint8)
 STEREO = gym.spaces.Box(0, 255, (2, 120, 160), np.uint8)

@@ -242,7 +242,7 @@ def test_a_camera_checkpoint_from_before_shared_trunks_keeps_its_actors_own_trun
 
 
 def test_frozen_heads_equal_the_heads_and_train_only_what_feeds_them():
-    from laplab.agents.networks import TwinQ
+    from laplab.agents.sac_networks import TwinQ
     critic = TwinQ(gym.spaces.Box(-1, 1, (6,), np.float32), 2)
     features = torch.randn(5, critic.trunk.output_dim, requires_grad=True)
     actions = torch.randn(5, 2, requires_grad=True)

@@ -7,7 +7,8 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from laplab.agents.networks import ActorCritic, SquashedGaussianActor, observation_to_tensor
+from laplab.agents.networks import ActorCritic, observation_to_tensor
+from laplab.agents.sac_networks import SquashedGaussianActor
 from laplab.agents.onnx_export import random_observations
 
 SHALLOW, STANDARD, DEEP = ("DEEP_CONVOLUTIONAL_NETWORK_SHALLOW", "DEEP_CONVOLUTIONAL_NETWORK",
