@@ -1,7 +1,8 @@
 """Collecting whole episodes from a batch of cars: one episode per car, as DeepRacer's iteration does.
 
 E cars start at E consecutive round-robin starts and each drives exactly one episode; a car whose
-episode ended waits (it is masked out of the rollout) until the last one ends. The result holds the
+episode ended waits until the last one ends: it no longer acts (about half of an iteration's car-steps
+were waits that ran the policy), and its rows are masked out of the rollout. The result holds the
 time-major rollout for the learner, per-episode results for metrics, and simtrace rows.
 """
 
@@ -76,14 +77,34 @@ def _stack(frames: list) -> Any:
     return np.stack(frames)
 
 
+def _take(observations: Any, rows: np.ndarray) -> Any:
+    """Rows of a batch of observations (an array, or a dict of arrays)."""
+    if isinstance(observations, dict):
+        return {key: value[rows] for key, value in observations.items()}
+    return observations[rows]
+
+
+def _scatter(outputs: tuple[np.ndarray, ...], rows: np.ndarray, num: int) -> tuple[np.ndarray, ...]:
+    """A policy's outputs for ``rows`` of ``num`` cars -> arrays for all of them, zeros elsewhere (the
+    waiting cars' rows are masked out of the rollout; a zero is a valid action of either kind)."""
+    full = []
+    for output in outputs:
+        output = np.asarray(output)
+        array = np.zeros((num, *output.shape[1:]), dtype=output.dtype)
+        array[rows] = output
+        full.append(array)
+    return tuple(full)
+
+
 def collect_episodes(stepper: EpisodeStepper, observations: ObservationBuilder, policy: PolicyFn,
                      value_fn: Callable[[Any], np.ndarray] | None = None, keep_observations: bool = True,
                      ndist: np.ndarray | None = None, should_abort: Callable[[], bool] | None = None,
                      on_poses: PosesHook | None = None) -> EpisodeBatch:
     """Run one episode on every car of ``stepper.sim`` with ``policy`` and return them.
 
-    ``policy(obs) -> (action, env_action, log_prob, value)`` for a batch (E, ...) of observations;
-    ``env_action`` is what the env receives (indices, or [-1, 1]^2 points). The stepper's reward
+    ``policy(obs) -> (action, env_action, log_prob, value)`` for a batch (B, ...) of observations: those
+    of the B <= E cars still driving (a car whose episode ended does not act while it waits; its rows
+    hold zeros and are not ``valid``); ``env_action`` is what the env receives (indices, or [-1, 1]^2 points). The stepper's reward
     function may raise :class:`~laplab.reward.errors.RewardFunctionError`, which propagates. ``value_fn``
     gives V(final obs) of episodes cut by the step cap. ``ndist`` overrides the round-robin starts
     (evaluation uses fixed starts). ``should_abort`` is polled every step; when it returns True,
@@ -103,7 +124,11 @@ def collect_episodes(stepper: EpisodeStepper, observations: ObservationBuilder, 
         if should_abort is not None and should_abort():
             raise CollectionAborted
         obs = observations.observe()  # new arrays each step: safe to keep in the rollout
-        action, env_action, log_prob, value = policy(obs)
+        driving = np.flatnonzero(st.status == IN_PROGRESS)
+        if driving.size == num:
+            action, env_action, log_prob, value = policy(obs)
+        else:  # only the cars still driving act (about half of an iteration's car-steps are waits)
+            action, env_action, log_prob, value = _scatter(policy(_take(obs, driving)), driving, num)
         result = stepper.step(env_action, trace=True)
         total += result.rewards
         cut = result.truncated
