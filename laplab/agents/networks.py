@@ -88,7 +88,6 @@ def action_spec_from(spec: Any) -> ActionSpec:
     )
 
 
-
 def dense_stack(in_dim: int, sizes: tuple[int, ...], activation: type[nn.Module]) -> nn.Sequential:
     """Dense layers of ``sizes`` from ``in_dim`` inputs, each followed by ``activation``."""
     layers: list[nn.Module] = []

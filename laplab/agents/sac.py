@@ -41,7 +41,6 @@ from laplab.agents.side_stream import RunOnSide, SideStream, run_now
 from laplab.agents.torch_runtime import flush_denormals, limit_torch_threads
 
 
-
 class SACLearner:
     """DeepRacer's SAC: ``act`` -> actions in [-1, 1]^A, ``observe`` transitions, ``update``.
 

@@ -13,7 +13,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from laplab.agents.networks import DEFAULT_NETWORK, dense_stack, build_embedder
+from laplab.agents.networks import DEFAULT_NETWORK, build_embedder, dense_stack
 
 
 def _frozen_dense(layers: nn.Module, x: torch.Tensor) -> torch.Tensor:
