@@ -139,7 +139,8 @@ def test_per_worker_simtrace_folders_are_published_as_drfc_writes_them(published
     from deepracer.logs.misc import LogFolderType
     url, _ = published
     remote = RemoteModels(ObjectStore(parse_store_url(url)))
-    source = remote.pull("m1", tmp_path / "pulled", ("best",))
+    # every checkpoint the index names (the best and the last differ when a later iteration evaluated worse)
+    source = remote.pull("m1", tmp_path / "pulled", ("best", "last"))
     folder = ModelFolder(tmp_path / "multi" / "mw")
     shutil.copytree(source.root, folder.root)
     simtrace = folder.root / "training-simtrace"
