@@ -104,11 +104,12 @@ def collect_episodes(stepper: EpisodeStepper, observations: ObservationBuilder, 
 
     ``policy(obs) -> (action, env_action, log_prob, value)`` for a batch (B, ...) of observations: those
     of the B <= E cars still driving (a car whose episode ended does not act while it waits; its rows
-    hold zeros and are not ``valid``); ``env_action`` is what the env receives (indices, or [-1, 1]^2 points). The stepper's reward
-    function may raise :class:`~laplab.reward.errors.RewardFunctionError`, which propagates. ``value_fn``
-    gives V(final obs) of episodes cut by the step cap. ``ndist`` overrides the round-robin starts
-    (evaluation uses fixed starts). ``should_abort`` is polled every step; when it returns True,
-    :class:`CollectionAborted` is raised. ``on_poses(poses, sim_time)`` is called after every step.
+    hold zeros and are not ``valid``); ``env_action`` is what the env receives (indices, or [-1, 1]^2
+    points). The stepper's reward function may raise :class:`~laplab.reward.errors.RewardFunctionError`,
+    which propagates. ``value_fn`` gives V(final obs) of episodes cut by the step cap. ``ndist``
+    overrides the round-robin starts (evaluation uses fixed starts). ``should_abort`` is polled every
+    step; when it returns True, :class:`CollectionAborted` is raised. ``on_poses(poses, sim_time)`` is
+    called after every step.
     """
     started = time.perf_counter()
     sim = stepper.sim

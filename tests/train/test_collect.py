@@ -66,4 +66,5 @@ def test_only_driving_cars_act_and_each_episode_is_what_it_would_be_alone():
         assert single.status[0] == batch.status[car]
         np.testing.assert_allclose(single.progress[0], batch.progress[car])
         np.testing.assert_allclose(single.total_reward[0], batch.total_reward[car])
-        np.testing.assert_array_equal(single.actions[:, 0][single.valid[:, 0]], batch.actions[:, car][batch.valid[:, car]])
+        alone_actions = single.actions[:, 0][single.valid[:, 0]]
+        np.testing.assert_array_equal(alone_actions, batch.actions[:, car][batch.valid[:, car]])
