@@ -31,6 +31,7 @@ from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, ActorCritic, Po
                                     set_compute_precision)
 from laplab.agents.side_stream import RunOnSide, SideStream, run_now
 from laplab.agents.torch_runtime import flush_denormals, limit_torch_threads
+from laplab.env.observations import take_rows
 
 CLIP_EPSILON = 0.2
 GAE_LAMBDA = 0.95
@@ -91,13 +92,6 @@ def _flatten_time(observations: Any, rows: np.ndarray) -> Any:
         return {key: _flatten_time(value, rows) for key, value in observations.items()}
     array = np.asarray(observations)
     return array.reshape(-1, *array.shape[2:])[rows]
-
-
-def take_rows(observations: Any, index: np.ndarray | slice) -> Any:
-    """Some rows of a batch of observations (an array or tensor, or a dict sensor -> one)."""
-    if isinstance(observations, Mapping):
-        return {key: value[index] for key, value in observations.items()}
-    return observations[index]
 
 
 class PPOLearner:

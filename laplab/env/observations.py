@@ -7,7 +7,7 @@ the simulator's step kernel; lidar and cameras are computed from the cars' poses
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import Any, Callable, Mapping
 
 import gymnasium as gym
 import numpy as np
@@ -17,6 +17,13 @@ from laplab.env.spec import ModelSpec
 from laplab.sim.simulator import Simulator
 
 Reader = Callable[[np.ndarray], np.ndarray]  # car indices (K,) -> (K, *shape)
+
+
+def take_rows(observations: Any, index: np.ndarray | slice) -> Any:
+    """Some rows of a batch of observations (an array or tensor, or a dict sensor -> one)."""
+    if isinstance(observations, Mapping):
+        return {key: value[index] for key, value in observations.items()}
+    return observations[index]
 
 
 class ObservationBuilder:

@@ -14,7 +14,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from laplab.env.observations import ObservationBuilder
+from laplab.env.observations import ObservationBuilder, take_rows
 from laplab.env.step import EpisodeStepper
 from laplab.sim.state import IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES
 
@@ -77,13 +77,6 @@ def _stack(frames: list) -> Any:
     return np.stack(frames)
 
 
-def _take(observations: Any, rows: np.ndarray) -> Any:
-    """Rows of a batch of observations (an array, or a dict of arrays)."""
-    if isinstance(observations, dict):
-        return {key: value[rows] for key, value in observations.items()}
-    return observations[rows]
-
-
 def _scatter(outputs: tuple[np.ndarray, ...], rows: np.ndarray, num: int) -> tuple[np.ndarray, ...]:
     """A policy's outputs for ``rows`` of ``num`` cars -> arrays for all of them, zeros elsewhere (the
     waiting cars' rows are masked out of the rollout; a zero is a valid action of either kind)."""
@@ -129,7 +122,7 @@ def collect_episodes(stepper: EpisodeStepper, observations: ObservationBuilder, 
         if driving.size == num:
             action, env_action, log_prob, value = policy(obs)
         else:  # only the cars still driving act (about half of an iteration's car-steps are waits)
-            action, env_action, log_prob, value = _scatter(policy(_take(obs, driving)), driving, num)
+            action, env_action, log_prob, value = _scatter(policy(take_rows(obs, driving)), driving, num)
         result = stepper.step(env_action, trace=True)
         total += result.rewards
         cut = result.truncated
