@@ -124,7 +124,7 @@ def pure_pursuit_steering(sim, lookahead: float = 0.6) -> np.ndarray:
         c, s = np.cos(st.yaw[cars]), np.sin(st.yaw[cars])
         forward, left = c * dx + s * dy, -s * dx + c * dy
         dist_sq = np.maximum(forward * forward + left * left, 1e-9)
-        steer[cars] = np.arctan(2.0 * sim.vehicle.wheelbase * left / dist_sq)
+        steer[cars] = sim.vehicle.steering_for_curvature(2.0 * left / dist_sq, st.speed[cars])
     return np.clip(steer, -sim.vehicle.max_steering, sim.vehicle.max_steering)
 
 

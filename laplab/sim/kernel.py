@@ -22,8 +22,8 @@ PARALLEL_THRESHOLD = 256  # cars: below it the serial loop wins (1.8 us a car vs
 
 @nb.njit(cache=True, inline="always")
 def _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing):
-    (wheelbase, steer_rate, max_accel, max_brake, max_lat, max_steer, dt, substeps,
-     ref_offset, half_track, max_speed) = vc
+    dc, dt, ref_offset, half_track, max_speed, max_steer = vc
+    wheelbase = dc[0]
     max_steps, reversed_steps, immobilized_steps, immobilized_distance = rules
     geo = fwd if st.direction[i] == 0 else rev
     centerline, segments, arc_length = geo.centerline, geo.segments, geo.arc_length
@@ -31,9 +31,8 @@ def _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count,
     length, far_gap, window = geo.length, geo.far_gap, geo.window
 
     x0, y0 = st.x[i], st.y[i]
-    x, y, yaw, speed, steer = advance_car(x0, y0, st.yaw[i], st.speed[i], st.steer[i], cmd_steer[i],
-                                          cmd_speed[i], wheelbase, steer_rate, max_accel, max_brake,
-                                          max_lat, max_steer, dt, substeps)
+    x, y, yaw, speed, steer = advance_car(x0, y0, st.yaw[i], st.speed[i], st.steer[i], st.cmd_steer[i],
+                                          st.cmd_speed[i], cmd_steer[i], cmd_speed[i], dt, dc)
     st.x[i], st.y[i], st.yaw[i], st.speed[i], st.steer[i] = x, y, yaw, speed, steer
     st.cmd_steer[i], st.cmd_speed[i] = cmd_steer[i], cmd_speed[i]
     c, s = math.cos(yaw), math.sin(yaw)
@@ -117,7 +116,7 @@ def step_kernel(st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, 
 @nb.njit(cache=True)
 def observe_kernel(st, fwd, rev, vc, obs, look_count, look_spacing, mask):
     """Fill ``obs`` rows of the cars in ``mask`` from their current state (after a reset)."""
-    max_steer, max_speed = vc[5], vc[10]
+    max_speed, max_steer = vc[4], vc[5]
     for i in range(st.x.shape[0]):
         if mask[i] and obs.shape[1] > 0:
             geo = fwd if st.direction[i] == 0 else rev

@@ -1,10 +1,11 @@
-"""Batched, pure dynamics of the grip-limited car, and its footprint.
+"""Batched, pure dynamics of the car, and its footprint.
 
-Model: a kinematic bicycle whose origin is the rear-axle centre, with a steering servo of limited
-slew rate, speed tracking toward the commanded speed under acceleration / braking limits, and a
-lateral-grip cap. When the commanded curvature kappa = tan(steer) / wheelbase asks for more lateral
-acceleration than ``max_lateral_acceleration`` (v^2 |kappa| > a_lat), the tyres saturate and the
-car follows kappa = a_lat / v^2 instead: it understeers. Each sub-step moves the car along an exact
+Model: a kinematic bicycle whose origin is the rear-axle centre, with an action delay, a steering
+response (first-order lag, slew rate, gain, offset, understeer), speed tracking toward the commanded
+speed (lag, acceleration / braking limits) and a lateral-grip cap (:class:`VehicleParams` documents
+each). The presets fitted to DeepRacer's simulator live in :mod:`laplab.vehicle.presets`. When the
+curvature asks for more lateral acceleration than ``max_lateral_acceleration`` (v^2 |kappa| > a_lat), the tyres saturate and the
+car follows kappa = a_lat / v^2 instead: it understeers. Each sub-step moves the pivot along an exact
 circular arc, so a constant steering angle drives an exact circle.
 """
 
@@ -30,95 +31,141 @@ class CarState(NamedTuple):
 
 
 def dynamics_constants(params: VehicleParams) -> tuple:
-    """The floats the kernels read, in the order of :func:`advance_car`'s trailing arguments."""
+    """The numbers the kernels read (:func:`advance_car`'s ``dc``), in a fixed order."""
     return (params.wheelbase, params.steering_rate, params.max_acceleration, params.max_braking,
-            params.max_lateral_acceleration, params.max_steering, params.dt, int(params.substeps))
+            params.max_lateral_acceleration, params.max_steering, int(params.substeps),
+            params.action_delay, math.radians(params.steering_saturation_deg), params.steering_time_constant, params.steering_gain, params.steering_offset,
+            params.understeer, params.pivot_offset, params.speed_ratio, params.speed_time_constant)
 
 
 @nb.njit(cache=True, inline="always")
-def advance_car(x, y, yaw, speed, steer, cmd_steer, cmd_speed,
-                wheelbase, steer_rate, max_accel, max_brake, max_lat, max_steer, dt, substeps):
-    """Advance one car by one decision step ``dt`` in ``substeps`` sub-steps; returns the new state."""
+def _lag_factor(h, time_constant):
+    return 1.0 - math.exp(-h / time_constant) if time_constant > 0.0 else 1.0
+
+
+@nb.njit(cache=True, inline="always")
+def advance_car(x, y, yaw, speed, steer, prev_steer, prev_speed, cmd_steer, cmd_speed, dt, dc):
+    """Advance one car by one decision step of ``dt`` s; returns the new (x, y, yaw, speed, steer).
+
+    ``prev_*`` is the previous action's command (it still acts for ``action_delay`` of the step),
+    ``cmd_*`` the new one; ``dc`` is :func:`dynamics_constants`' tuple.
+    """
+    (wheelbase, steer_rate, max_accel, max_brake, max_lat, max_steer, substeps, delay, saturation, steer_tau,
+     steer_gain, steer_offset, understeer, pivot, speed_ratio, speed_tau) = dc
     h = dt / substeps
+    a_steer = _lag_factor(h, steer_tau)
+    a_speed = _lag_factor(h, speed_tau)
+    late = delay * substeps
+    prev_steer = min(max(prev_steer, -max_steer), max_steer)
     cmd_steer = min(max(cmd_steer, -max_steer), max_steer)
-    cmd_speed = max(cmd_speed, 0.0)
-    for _ in range(substeps):
-        d_steer = min(max(cmd_steer - steer, -steer_rate * h), steer_rate * h)
-        steer += d_steer
-        dv = cmd_speed - speed
+    if saturation > 0.0:
+        prev_steer = saturation * math.tanh(prev_steer / saturation)
+        cmd_steer = saturation * math.tanh(cmd_steer / saturation)
+    c, s = math.cos(yaw), math.sin(yaw)
+    px, py = x + pivot * c, y + pivot * s
+    for j in range(substeps):
+        if j + 0.5 < late:
+            target_steer, target_speed = prev_steer, prev_speed
+        else:
+            target_steer, target_speed = cmd_steer, cmd_speed
+        target_speed = max(target_speed, 0.0) * speed_ratio
+        steer += min(max((target_steer - steer) * a_steer, -steer_rate * h), steer_rate * h)
+        dv = (target_speed - speed) * a_speed
         new_speed = speed + (min(dv, max_accel * h) if dv > 0.0 else max(dv, -max_brake * h))
         ds = 0.5 * (speed + new_speed) * h
         speed = new_speed
-        kappa = math.tan(steer) / wheelbase
         v_sq = speed * speed
+        kappa = steer_gain * math.tan(steer + steer_offset) / wheelbase
+        if understeer > 0.0:
+            kappa /= 1.0 + understeer * v_sq
         if v_sq * abs(kappa) > max_lat:
             kappa = math.copysign(max_lat / v_sq, kappa)
         d_yaw = kappa * ds
         if abs(d_yaw) > 1e-9:
-            x += (math.sin(yaw + d_yaw) - math.sin(yaw)) / kappa
-            y += (math.cos(yaw) - math.cos(yaw + d_yaw)) / kappa
+            px += (math.sin(yaw + d_yaw) - math.sin(yaw)) / kappa
+            py += (math.cos(yaw) - math.cos(yaw + d_yaw)) / kappa
         else:
-            x += ds * math.cos(yaw + 0.5 * d_yaw)
-            y += ds * math.sin(yaw + 0.5 * d_yaw)
+            px += ds * math.cos(yaw + 0.5 * d_yaw)
+            py += ds * math.sin(yaw + 0.5 * d_yaw)
         yaw += d_yaw
     if yaw > math.pi:
         yaw -= 2.0 * math.pi
     elif yaw <= -math.pi:
         yaw += 2.0 * math.pi
+    x, y = px - pivot * math.cos(yaw), py - pivot * math.sin(yaw)
     return x, y, yaw, speed, steer
 
 
-def _step_loop(x, y, yaw, speed, steer, cmd_steer, cmd_speed, consts, out_x, out_y, out_yaw, out_speed, out_steer):
-    wheelbase, steer_rate, max_accel, max_brake, max_lat, max_steer, dt, substeps = consts
+def _step_loop(x, y, yaw, speed, steer, prev_steer, prev_speed, cmd_steer, cmd_speed, dt, dc,
+               out_x, out_y, out_yaw, out_speed, out_steer):
     for i in nb.prange(x.shape[0]):
         out_x[i], out_y[i], out_yaw[i], out_speed[i], out_steer[i] = advance_car(
-            x[i], y[i], yaw[i], speed[i], steer[i], cmd_steer[i], cmd_speed[i],
-            wheelbase, steer_rate, max_accel, max_brake, max_lat, max_steer, dt, substeps)
+            x[i], y[i], yaw[i], speed[i], steer[i], prev_steer[i], prev_speed[i], cmd_steer[i], cmd_speed[i],
+            dt, dc)
 
 
 _step_serial = nb.njit(cache=True)(_step_loop)
 _step_parallel = nb.njit(cache=True, parallel=True)(_step_loop)
 
 
-def step(state: CarState, cmd_steer: np.ndarray, cmd_speed: np.ndarray, params: VehicleParams) -> CarState:
+def step(state: CarState, cmd_steer: np.ndarray, cmd_speed: np.ndarray, params: VehicleParams,
+         previous: tuple[np.ndarray, np.ndarray] | None = None) -> CarState:
     """Pure batched step: ``(state, action, params) -> new state`` for N cars over ``params.dt``.
 
-    ``cmd_steer`` (N,) rad and ``cmd_speed`` (N,) m/s are the commanded steering angle and speed.
+    ``cmd_steer`` (N,) rad and ``cmd_speed`` (N,) m/s are the commanded steering angle and speed;
+    ``previous`` the (steer, speed) commands of the step before (None: the same command was held).
     """
     n = state.x.shape[0]
     out = CarState(*(np.empty(n) for _ in range(5)))
     loop = _step_parallel if n >= 256 else _step_serial
-    loop(*(np.ascontiguousarray(a, dtype=np.float64) for a in state),
-               np.ascontiguousarray(cmd_steer, dtype=np.float64), np.ascontiguousarray(cmd_speed, dtype=np.float64),
-               dynamics_constants(params), *out)
+    steer_cmd = np.ascontiguousarray(np.broadcast_to(cmd_steer, (n,)), dtype=np.float64)
+    speed_cmd = np.ascontiguousarray(np.broadcast_to(cmd_speed, (n,)), dtype=np.float64)
+    prev_steer, prev_speed = (steer_cmd, speed_cmd) if previous is None else (
+        np.ascontiguousarray(np.broadcast_to(p, (n,)), dtype=np.float64) for p in previous)
+    loop(*(np.ascontiguousarray(a, dtype=np.float64) for a in state), prev_steer, prev_speed, steer_cmd, speed_cmd,
+         float(params.dt), dynamics_constants(params), *out)
     return out
 
 
-def step_reference(state: CarState, cmd_steer, cmd_speed, params: VehicleParams) -> CarState:
+def step_reference(state: CarState, cmd_steer, cmd_speed, params: VehicleParams,
+                   previous: tuple | None = None) -> CarState:
     """Plain numpy version of :func:`step` (vectorised over cars), the parity reference."""
     x, y, yaw, speed, steer = (np.array(a, dtype=np.float64) for a in state)
-    h = params.dt / params.substeps
-    cmd_steer = np.clip(np.asarray(cmd_steer, dtype=np.float64), -params.max_steering, params.max_steering)
-    cmd_speed = np.maximum(np.asarray(cmd_speed, dtype=np.float64), 0.0)
-    for _ in range(params.substeps):
-        steer = steer + np.clip(cmd_steer - steer, -params.steering_rate * h, params.steering_rate * h)
-        dv = cmd_speed - speed
-        new_speed = speed + np.where(dv > 0, np.minimum(dv, params.max_acceleration * h),
-                                     np.maximum(dv, -params.max_braking * h))
+    p = params
+    h = p.dt / p.substeps
+    lag = lambda tau: 1.0 - math.exp(-h / tau) if tau > 0 else 1.0  # noqa: E731
+    a_steer, a_speed = lag(p.steering_time_constant), lag(p.speed_time_constant)
+    new_cmd = (np.asarray(cmd_steer, dtype=np.float64), np.asarray(cmd_speed, dtype=np.float64))
+    old_cmd = new_cmd if previous is None else tuple(np.asarray(a, dtype=np.float64) for a in previous)
+    saturation = math.radians(p.steering_saturation_deg)
+
+    def steering_target(command):
+        command = np.clip(command, -p.max_steering, p.max_steering)
+        return saturation * np.tanh(command / saturation) if saturation > 0 else command
+
+    new_cmd, old_cmd = (steering_target(new_cmd[0]), new_cmd[1]), (steering_target(old_cmd[0]), old_cmd[1])
+    px, py = x + p.pivot_offset * np.cos(yaw), y + p.pivot_offset * np.sin(yaw)
+    for j in range(p.substeps):
+        target_steer, target_speed = old_cmd if j + 0.5 < p.action_delay * p.substeps else new_cmd
+        target_speed = np.maximum(target_speed, 0.0) * p.speed_ratio
+        steer = steer + np.clip((target_steer - steer) * a_steer, -p.steering_rate * h, p.steering_rate * h)
+        dv = (target_speed - speed) * a_speed
+        new_speed = speed + np.where(dv > 0, np.minimum(dv, p.max_acceleration * h),
+                                     np.maximum(dv, -p.max_braking * h))
         ds = 0.5 * (speed + new_speed) * h
         speed = new_speed
-        kappa = np.tan(steer) / params.wheelbase
-        limit = params.max_lateral_acceleration / np.maximum(speed * speed, 1e-300)
-        kappa = np.where(speed * speed * np.abs(kappa) > params.max_lateral_acceleration,
+        kappa = p.steering_gain * np.tan(steer + p.steering_offset) / p.wheelbase / (1.0 + p.understeer * speed ** 2)
+        limit = p.max_lateral_acceleration / np.maximum(speed * speed, 1e-300)
+        kappa = np.where(speed * speed * np.abs(kappa) > p.max_lateral_acceleration,
                          np.copysign(limit, kappa), kappa)
         d_yaw = kappa * ds
         arc = np.abs(d_yaw) > 1e-9
         safe_k = np.where(arc, kappa, 1.0)
-        x = x + np.where(arc, (np.sin(yaw + d_yaw) - np.sin(yaw)) / safe_k, ds * np.cos(yaw + 0.5 * d_yaw))
-        y = y + np.where(arc, (np.cos(yaw) - np.cos(yaw + d_yaw)) / safe_k, ds * np.sin(yaw + 0.5 * d_yaw))
+        px = px + np.where(arc, (np.sin(yaw + d_yaw) - np.sin(yaw)) / safe_k, ds * np.cos(yaw + 0.5 * d_yaw))
+        py = py + np.where(arc, (np.cos(yaw) - np.cos(yaw + d_yaw)) / safe_k, ds * np.sin(yaw + 0.5 * d_yaw))
         yaw = yaw + d_yaw
     yaw = np.where(yaw > np.pi, yaw - 2 * np.pi, np.where(yaw <= -np.pi, yaw + 2 * np.pi, yaw))
-    return CarState(x, y, yaw, speed, steer)
+    return CarState(px - p.pivot_offset * np.cos(yaw), py - p.pivot_offset * np.sin(yaw), yaw, speed, steer)
 
 
 def wheel_centers(poses: np.ndarray, params: VehicleParams) -> np.ndarray:

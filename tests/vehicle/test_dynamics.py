@@ -1,4 +1,5 @@
-"""Dynamics of the grip-limited car: closed-form circles, speed and steering limits, numba/numpy parity."""
+"""Dynamics of laplab's classic car (the kinematic bicycle with no lags, which every preset builds on):
+closed-form circles, speed and steering limits, numba/numpy parity. DeepRacer's cars: test_deepracer_cars.py."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import pytest
 from laplab.vehicle.dynamics import (
     CarState, body_corners, reference_point, step, step_reference, wheel_centers,
 )
-from laplab.vehicle.params import DEEPRACER, VehicleParams, vehicle_preset
+from laplab.vehicle.params import CLASSIC as DEEPRACER, VehicleParams, vehicle_preset
 
 
 def state_of(n: int = 1, x=0.0, y=0.0, yaw=0.0, speed=0.0, steer=0.0) -> CarState:
@@ -192,9 +193,9 @@ def test_footprint_points():
 
 
 def test_vehicle_params_validation():
-    assert vehicle_preset("deepracer") is DEEPRACER
+    assert vehicle_preset("laplab-classic") is DEEPRACER
     assert DEEPRACER.dt == pytest.approx(1 / 15) and DEEPRACER.reference_offset == 0.14
-    with pytest.raises(ValueError, match="unknown vehicle preset"):
+    with pytest.raises(ValueError, match="unknown car"):
         vehicle_preset("f1")
     with pytest.raises(ValueError, match="wheelbase"):
         VehicleParams(wheelbase=0.0)
