@@ -49,6 +49,9 @@ def register(subparsers) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of sensor noise and stochastic actions (default 0)")
     parser.add_argument("--stochastic", action="store_true", help="sample actions instead of taking the greedy one")
     parser.add_argument("--video", action="store_true", help="write a video of the first trial")
+    parser.add_argument("--physics", default=None, metavar="V",
+                        help="drive another of DeepRacer's cars: 4, 5, 6 or classic (default: the car the model "
+                             "trained with)")
     parser.add_argument("--list", action="store_true", help="list the model's evaluations instead of running one")
     parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
     from laplab.commands.store_option import add_store_option
@@ -83,7 +86,7 @@ def _evaluate(args: argparse.Namespace, console: Console, store_url: str | None)
             track=args.track, trials=args.trials, checkpoint=args.checkpoint,
             off_track_penalty=args.off_track_penalty, crash_penalty=args.crash_penalty, resets=args.resets,
             continuous=args.continuous, seed=args.seed, stochastic=args.stochastic, video=args.video,
-            force=args.force, max_trial_time=args.max_trial_time)
+            force=args.force, max_trial_time=args.max_trial_time, physics=args.physics)
         result, stamp = evaluate_model(args.model, settings)
     except EvaluationError as exc:
         raise UserError(str(exc)) from None
@@ -96,6 +99,19 @@ def _evaluate(args: argparse.Namespace, console: Console, store_url: str | None)
     return 0
 
 
+def car_line(car: str, trained_with: str | None = None) -> str:
+    """What car an evaluation drove, and a word when it is laplab's classic one or not the model's own."""
+    from laplab.vehicle.physics import describe_car
+    from laplab.vehicle.params import CLASSIC
+    line = f"car: {describe_car(car)}"
+    if trained_with and trained_with != car:
+        line += f"; the model trained with {trained_with}"
+    elif car == CLASSIC.name:
+        line += (". This model was trained before laplab drove DeepRacer's cars, so it keeps the car it learnt "
+                 "on; --physics 6 drives DeepRacer on AWS's car, --physics 4 or 5 the console's")
+    return line
+
+
 def print_evaluation(console: Console, result, stamp: str, folder, store_url: str | None = None) -> None:
     from laplab.evaluate.summary import summary_lines, trials_table
     s = result.settings
@@ -104,6 +120,7 @@ def print_evaluation(console: Console, result, stamp: str, folder, store_url: st
              f"{'continuous laps' if s.continuous else 'trials'}, off-track penalty {s.off_track_penalty:g} s, "
              f"resets {resets}, {'stochastic' if s.stochastic else 'greedy'}")
     console.print(trials_table(result.trials, result.summary.optimal_lap_time, title=title))
+    console.print(car_line(result.vehicle.name, trained_with=getattr(result, "trained_car", None)))
     for line in summary_lines(result.summary):
         console.print(line)
     where = f"{store_url}{folder.evaluation_dir(stamp).name}/" if store_url else folder.evaluation_dir(stamp)

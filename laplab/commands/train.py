@@ -25,6 +25,9 @@ def _add_job_options(parser: argparse.ArgumentParser, defaults: bool) -> None:
     parser.add_argument("--max-time", default="20m" if defaults else none, help="stop after this long (e.g. 90s, 20m, 1h)")
     parser.add_argument("--max-episodes", type=int, default=none, help="stop after this many training episodes")
     parser.add_argument("--seed", type=int, default=0 if defaults else none, help="random seed")
+    parser.add_argument("--physics", default=none, metavar="V",
+                        help="DeepRacer's car to train with: 4, 5 or 6 (model_metadata.json's version decides by "
+                             "default; no version: 6, DeepRacer on AWS's) or classic (laplab's car before them)")
     from laplab.commands.store_option import add_store_option
     add_store_option(parser)
 
@@ -106,6 +109,13 @@ def _overrides(args: argparse.Namespace) -> dict:
            "max_time_s": parse_duration(args.max_time) if args.max_time else None}
     if args.model_metadata:
         out["model_metadata"] = load_model_metadata(args.model_metadata).to_dict()
+    if getattr(args, "physics", None):
+        from laplab.errors import UserError
+        from laplab.vehicle.physics import PhysicsError, resolve_physics
+        try:
+            out["vehicle"] = resolve_physics(args.physics)
+        except PhysicsError as error:
+            raise UserError(str(error)) from None
     if args.hyperparameters and args.hyperparameters.lstrip().startswith("{"):  # the JSON itself
         out["hyperparameters"] = parse_hyperparameters(args.hyperparameters, "--hyperparameters").to_dict()
     elif args.hyperparameters:
@@ -226,6 +236,9 @@ def run_train(args: argparse.Namespace) -> int:
         if overrides["track"] or overrides["tracks"]:
             raise UserError("a resumed job keeps its tracks; to train on others, "
                             f"`laplab clone {args.resume} NEW --track ...`")
+        if overrides.get("vehicle"):
+            raise UserError("a resumed job keeps the car it trained with; to train with another one, "
+                            f"`laplab clone {args.resume} NEW --physics {args.physics}`")
     else:
         values = {k: v for k, v in _overrides(args).items() if v is not None}
         values["domain_randomization"] = bool(args.domain_randomization)

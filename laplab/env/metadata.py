@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from laplab.env.action_space import ActionSpace, ActionSpaceError, default_action_space, parse_action_space
+from laplab.vehicle.physics import DEFAULT_VERSION, PhysicsError, car_for_version
 
 CAMERA_SENSORS = ("FRONT_FACING_CAMERA", "STEREO_CAMERAS", "LEFT_CAMERA")
 LIDAR_SENSORS = ("LIDAR", "SECTOR_LIDAR", "DISCRETIZED_SECTOR_LIDAR")
@@ -29,7 +30,7 @@ class ModelMetadata:
     sensors: tuple[str, ...] = (STATE_SENSOR,)
     neural_network: str = NETWORKS[0]
     training_algorithm: str = "clipped_ppo"
-    version: str = "5"
+    version: str = DEFAULT_VERSION  # DeepRacer's physics generation (laplab.vehicle.physics)
     lidar_config: dict | None = None
 
     @property
@@ -113,7 +114,12 @@ def metadata_from_dict(data: object, source: str = "model_metadata.json") -> Mod
         for key in ("num_sectors", "num_values_per_sector", "clipping_dist"):
             if key in lidar_config and not (isinstance(lidar_config[key], (int, float)) and lidar_config[key] > 0):
                 raise MetadataError(f"{source}: lidar_config.{key} must be a positive number, got {lidar_config[key]!r}.")
-    return ModelMetadata(action_space, sensors, network, algorithm, str(data.get("version", "5")), lidar_config)
+    version = str(data.get("version", DEFAULT_VERSION))
+    try:
+        car_for_version(version)
+    except PhysicsError as error:
+        raise MetadataError(f"{source}: {error}.") from None
+    return ModelMetadata(action_space, sensors, network, algorithm, version, lidar_config)
 
 
 def load_model_metadata(path: str | Path) -> ModelMetadata:

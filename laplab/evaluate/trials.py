@@ -61,6 +61,8 @@ class EvaluationSettings:
     - ``video``: write an MP4 (else GIF) of the first trial.
     - ``max_trial_time``: s of simulation time (penalties included) after which a trial still running
       ends as ``time_up``; 600 s is 9,000 decisions, several times the slowest sensible lap.
+    - ``physics``: the car to drive (``--physics``: 4, 5, 6, ``classic`` or a car's name); None: the
+      car the model trained with (:mod:`laplab.vehicle.physics`).
     """
 
     track: str | None = None
@@ -75,6 +77,7 @@ class EvaluationSettings:
     video: bool = False
     force: bool = False
     max_trial_time: float = 600.0
+    physics: str | None = None
 
     def __post_init__(self) -> None:
         limit = FORCED_MAX_TRIALS if self.force else CONSOLE_MAX_TRIALS
@@ -93,6 +96,12 @@ class EvaluationSettings:
             raise EvaluationError(f"max trial time must be a positive number of seconds, got {self.max_trial_time!r}")
         if not isinstance(self.checkpoint, str) or not self.checkpoint:
             raise EvaluationError(f"checkpoint must be 'best', 'last' or a checkpoint name, got {self.checkpoint!r}")
+        if self.physics is not None:
+            from laplab.vehicle.physics import PhysicsError, resolve_physics
+            try:
+                object.__setattr__(self, "physics", resolve_physics(self.physics))
+            except PhysicsError as error:
+                raise EvaluationError(str(error)) from None
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -115,6 +124,7 @@ class EvaluationResult:
     model: str | None = None
     checkpoint: str | None = None
     video: str | None = None
+    trained_car: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The ``summary.json`` document."""
@@ -124,7 +134,7 @@ class EvaluationResult:
             "settings": self.settings.to_dict(), "trials": [t.to_dict() for t in self.trials],
             "summary": self.summary.to_dict(), "video": self.video,
             "action_space_type": self.metadata.action_space.kind, "sensors": list(self.metadata.sensors),
-            "decisions": self.decisions, "wall_seconds": self.wall_seconds,
+            "car": self.vehicle.name, "trained_car": self.trained_car, "decisions": self.decisions, "wall_seconds": self.wall_seconds,
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         }
 
@@ -233,7 +243,7 @@ def evaluate_model(name: str, settings: EvaluationSettings = EvaluationSettings(
     policy = load_model_policy(name, settings.checkpoint, seed=0 if settings.seed is None else settings.seed)
     config = policy.config
     track = load_track(settings.track) if settings.track else load_track(config.track, reverse=config.reverse)
-    vehicle = vehicle_preset(config.vehicle)
+    vehicle = vehicle_preset(settings.physics or config.vehicle)
     try:
         optimal = optimal_lap_time(track, vehicle)
         standing = standing_start_optimal_lap_time(track, vehicle)
@@ -243,6 +253,7 @@ def evaluate_model(name: str, settings: EvaluationSettings = EvaluationSettings(
         optimal = standing = None
     result = evaluate_policy(policy, track, settings, vehicle=vehicle, optimal_lap_time=optimal,
                              standing_start_lap_time=standing)
+    result = replace(result, trained_car=config.vehicle)
     stamp, result = save_evaluation(policy.folder, result)
     return result, stamp
 

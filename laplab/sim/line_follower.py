@@ -1,12 +1,13 @@
 """Drive a race line in the simulator: a batched curvature-feedforward controller and lap runs.
 
-The simulator's car is a kinematic bicycle on the rear axle, so the path its origin follows has
-curvature exactly ``tan(steer) / wheelbase``. :class:`LineFollower` therefore steers with the
-line's own curvature (feedforward) plus a small correction for the distance and angle to the line:
+The simulator's car is a kinematic bicycle whose path curvature follows the steering
+(:meth:`VehicleParams.curvature`, after the car's delay and lag). :class:`LineFollower` therefore
+steers with the line's own curvature (feedforward) plus a small correction for the distance and angle
+to the line:
 
     correction = - lateral_gain * e - heading_gain * psi
-    kappa_cmd  = kappa_line(s + curvature_preview * v dt) + correction
-    steer      = atan(kappa_cmd * wheelbase), clipped to the steering limit
+    kappa_cmd  = kappa_line(s + (curvature_preview + response_steps) * v dt) + correction
+    steer      = VehicleParams.steering_for_curvature(kappa_cmd, v), clipped to the steering limit
     speed      = min(v_line(s_v), sqrt(a_lat / |kappa_line(s_v) + correction|)),  s_v = s + speed_preview * v dt
 
 where ``s`` (m) is the arc length of the origin's projection onto the line, ``e`` (m) its signed
@@ -153,10 +154,11 @@ class LineFollower:
         (steering angle (N,) rad, speed (N,) m/s)."""
         p, v = self.params, self.vehicle
         s, lateral, psi = self.project(poses)
-        step = np.maximum(np.asarray(speeds, dtype=np.float64).reshape(-1), 0.0) * v.dt
+        speeds = np.maximum(np.asarray(speeds, dtype=np.float64).reshape(-1), 0.0)
+        step = speeds * v.dt
         correction = -p.lateral_gain * lateral - p.heading_gain * psi
-        kappa = self._curvature_at(s + p.curvature_preview * step) + correction
-        steer = np.clip(np.arctan(kappa * v.wheelbase), -v.max_steering, v.max_steering)
+        kappa = self._curvature_at(s + (p.curvature_preview + v.response_steps) * step) + correction
+        steer = v.steering_for_curvature(kappa, speeds)
         speed_arc = s + p.speed_preview * step
         speed = np.interp(np.mod(speed_arc, self.length), self.arc, self._closed_speeds)
         if p.grip_speed_cap:
@@ -189,7 +191,7 @@ def start_on_line(sim: Simulator, cars: np.ndarray, follower: LineFollower, flyi
     flying = np.broadcast_to(np.asarray(flying, dtype=bool), cars.shape)
     sim.reset(np.isin(np.arange(sim.num_cars), cars), ndist=0.0)
     speed = np.where(flying, follower.speeds[0], 0.0)
-    steer = np.where(flying, math.atan(follower.curvature[0] * sim.vehicle.wheelbase), 0.0)
+    steer = np.where(flying, sim.vehicle.steering_for_curvature(follower.curvature[0], follower.speeds[0]), 0.0)
     sim.place(cars, np.tile(follower.start_pose, (cars.size, 1)), speed=speed, steer=steer)
     st = sim.state
     st.start_arc[cars], st.travel[cars], st.progress[cars] = st.arc[cars], 0.0, 0.0

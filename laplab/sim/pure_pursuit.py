@@ -58,7 +58,7 @@ class PurePursuit:
         alpha = np.arctan2(dy, dx) - poses[:, 2]
         alpha = np.mod(alpha + np.pi, 2 * np.pi) - np.pi
         distance = np.maximum(np.hypot(dx, dy), 1e-6)
-        steer = np.clip(np.arctan2(2.0 * v.wheelbase * np.sin(alpha), distance), -v.max_steering, v.max_steering)
+        steer = v.steering_for_curvature(2.0 * np.sin(alpha) / distance, speeds)
         if self.speeds is None:
             speed = np.full(poses.shape[0], p.speed)
         else:

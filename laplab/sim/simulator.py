@@ -34,8 +34,9 @@ class Simulator:
         self.state: SimState = empty_state(self.num_cars)
         self.obs = empty_obs(self.num_cars, state_sensor.size if state_sensor else 0)
         self._look = (state_sensor.lookahead_count, state_sensor.spacing) if state_sensor else (1, 1.0)
-        self._vc = (dynamics_constants(vehicle), float(vehicle.dt), float(vehicle.reference_offset),
-                    0.5 * vehicle.wheel_track, float(vehicle.max_speed), float(vehicle.max_steering))
+        self._vc = dynamics_constants(vehicle) + (float(vehicle.dt), float(vehicle.reference_offset),
+                                                  0.5 * vehicle.wheel_track, float(vehicle.max_speed),
+                                                  float(vehicle.max_steering))
         self._rules = (int(episode.max_steps), int(episode.reversed_steps), int(episode.immobilized_steps),
                        float(episode.immobilized_distance))
         self._episodes_done = np.zeros(self.num_cars, dtype=np.int64)

@@ -1,11 +1,13 @@
 """Optimal race line of a closed track: minimum curvature, then refined toward minimum lap time.
 
-The line is the path of the car's model origin (rear-axle centre). Method:
+The line is the path of the car's model origin (rear-axle centre), for one car (:class:`VehicleParams`:
+its response folds into the speed profile's limits). Method:
 
 1. Reference line: the centre line smoothed (route centre lines are noisy) and resampled every
    ``spacing`` m, with unit left normals ``n_i``. The line is ``p_i = c_i + alpha_i n_i``.
 2. Bounds: the room on each side is the distance from ``c_i`` to that border polyline, smoothed
-   without ever exceeding it; ``alpha`` keeps ``vehicle.half_width + margin`` inside it.
+   without ever exceeding it; ``alpha`` keeps :func:`line_clearance` inside it (DeepRacer's off-track
+   rule: the line may cross a border by half the wheel track less ``margin``, the inner wheels on the road).
 3. Minimum curvature: minimise ``sum kappa_i^2`` (finite-difference curvature of the line)
    by Gauss-Newton: each step a box-constrained QP in ``alpha`` with the sparse Jacobian,
    solved by a small interior-point method on scipy's sparse LU.
@@ -337,6 +339,17 @@ def _minimum_time(centre, normals, lower, upper, alpha, limits, settings: RaceLi
     return alpha
 
 
+def line_clearance(vehicle: VehicleParams, margin: float) -> float:
+    """How far inside a border (m; negative: outside it) the line may run under DeepRacer's off-track rule.
+
+    A car is off the track only when none of its wheel centres is on it (simapp's
+    ``off_track_reset_rule``): up to three wheels may be off. The line is the path of the car's
+    origin, midway between its left and right wheels, so it may cross a border by half the wheel
+    track and keep the inner wheels on the road; ``margin`` (m) is kept from that limit.
+    """
+    return margin - 0.5 * vehicle.wheel_track
+
+
 def compute_raceline(centerline: np.ndarray, left_width: np.ndarray, right_width: np.ndarray,
                      vehicle: VehicleParams = DEEPRACER, margin: float = 0.05, refine_min_time: bool = True,
                      *, settings: RaceLineSettings = RaceLineSettings(),
@@ -347,7 +360,7 @@ def compute_raceline(centerline: np.ndarray, left_width: np.ndarray, right_width
     each centre point to the border on the driver's left / right. ``borders`` = (left polyline,
     right polyline), each (K, 2) closed: when given, the clearances at the resampled points are
     measured to them exactly instead of interpolated from the widths. The line keeps
-    ``vehicle.half_width + margin`` from both borders.
+    :func:`line_clearance` from both borders.
     """
     started = time.perf_counter()
     raw = np.asarray(centerline, dtype=np.float64)
@@ -371,14 +384,14 @@ def compute_raceline(centerline: np.ndarray, left_width: np.ndarray, right_width
         room_right = np.interp(source_arc, raw_arc, extend(widths[1])) + shift
     window = max(1, int(round(0.4 / settings.spacing)))
     room_left, room_right = _smooth_below(room_left, window), _smooth_below(room_right, window)
-    clearance = vehicle.half_width + margin
+    clearance = line_clearance(vehicle, margin)
     lower, upper = clearance - room_right, room_left - clearance
     if (lower >= upper).any():
         worst = int(np.argmax(lower - upper))
         raise ValueError(
             f"the track is too narrow for the car: near centre-line point ({centre[worst, 0]:.2f}, "
-            f"{centre[worst, 1]:.2f}) m it is {room_left[worst] + room_right[worst]:.3f} m wide, but the car "
-            f"needs 2 x (half_width {vehicle.half_width:.3f} + margin {margin:.3f}) m; lower the margin")
+            f"{centre[worst, 1]:.2f}) m it is {room_left[worst] + room_right[worst]:.3f} m wide, but the line "
+            f"needs 2 x {clearance:.3f} m (margin {margin:.3f} m less half the wheel track); lower the margin")
     alpha = _minimum_curvature(centre, normals, lower, upper, settings.curvature_iterations)
     limits = limit_arguments(vehicle, settings.profile)
     if refine_min_time and (settings.time_iterations > 0 or settings.polish_sweeps > 0):

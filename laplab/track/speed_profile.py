@@ -1,11 +1,13 @@
 """Velocity profile of a closed path under the simulator's car limits.
 
-The path is the one the car's model origin (rear-axle centre) follows. For a kinematic bicycle
-whose origin is the rear axle, the path curvature is exactly ``tan(steering) / wheelbase``, so the
-same curvature bounds the steering the path needs. Limits (all from :class:`VehicleParams`):
+The path is the one the car's pivot follows (:class:`VehicleParams`: the rear-axle centre, or
+``pivot_offset`` from it). Its curvature is ``steering_gain * tan(steering) / wheelbase`` at low speed
+(:func:`limit_arguments` folds the gain into an effective wheelbase), so the same curvature bounds the
+steering the path needs. Limits (all from :class:`VehicleParams`):
 
-- speed: ``v <= max_speed``;
+- speed: ``v <= speed_ratio * max_speed``;
 - grip: ``v^2 |kappa| <= grip_fraction * max_lateral_acceleration``;
+- steering lock: ``|kappa| (1 + understeer v^2) <= k_lock`` (the car's understeer at speed);
 - steering slew rate: ``|d steering/dt| <= steering_rate``, i.e.
   ``v <= steering_rate * (1 + (wheelbase kappa)^2) / (wheelbase |d kappa/ds|)``;
 - acceleration ``(v_{i+1}^2 - v_i^2) / (2 ds_i) <= max_acceleration`` (forward pass) and braking
@@ -28,6 +30,7 @@ import numpy as np
 from laplab.vehicle.params import DEEPRACER, VehicleParams
 
 _TINY_CURVATURE = 1e-12  # 1/m: below this a segment counts as straight
+_CRAWL_SPEED = 0.1  # m/s, DeepRacer's slowest action: where no speed makes a curvature, the car crawls
 
 
 @dataclass(frozen=True)
@@ -69,8 +72,14 @@ class SpeedProfile:
 
 
 def max_path_curvature(vehicle: VehicleParams) -> float:
-    """Largest curvature (1/m) the rear-axle path reaches at full steering lock: tan(max) / wheelbase."""
-    return math.tan(vehicle.max_steering) / vehicle.wheelbase
+    """Largest curvature (1/m) the pivot's path reaches at full steering lock at low speed (either way:
+    the smaller of the two when the steering has an offset)."""
+    lock = vehicle.max_steering
+    if vehicle.steering_saturation_deg > 0:
+        saturation = math.radians(vehicle.steering_saturation_deg)
+        lock = saturation * math.tanh(lock / saturation)
+    lock -= abs(vehicle.steering_offset)
+    return vehicle.steering_gain * math.tan(lock) / vehicle.wheelbase
 
 
 def open_loop(points: np.ndarray, name: str = "points") -> np.ndarray:
@@ -102,13 +111,18 @@ def local_curvature(x: np.ndarray, y: np.ndarray, i: int) -> float:
 
 @numba.njit(cache=True)
 def local_speed_limit(curvature: np.ndarray, seg: np.ndarray, i: int, v_max: float, lateral: float,
-                      wheelbase: float, steer_rate: float) -> float:
-    """Speed cap (m/s) at point i from max speed, grip and (if ``steer_rate`` > 0) steering slew rate."""
+                      wheelbase: float, steer_rate: float, k_lock: float, understeer: float) -> float:
+    """Speed cap (m/s) at point i from max speed, grip, the steering lock's curvature ``k_lock`` (1/m)
+    shrinking as ``1 / (1 + understeer v^2)`` (a curvature beyond ``k_lock`` gets the minimum speed) and
+    (if ``steer_rate`` > 0) the steering's rate."""
     m = curvature.shape[0]
     k = abs(curvature[i])
     v = v_max
     if k > _TINY_CURVATURE:
         v = min(v, math.sqrt(lateral / k))
+        if understeer > 0.0:
+            v = min(v, math.sqrt(max(k_lock / k - 1.0, 0.0) / understeer))
+        v = max(v, _CRAWL_SPEED)
     if steer_rate > 0.0:
         dk = abs(curvature[(i + 1) % m] - curvature[i - 1]) / (seg[i - 1] + seg[i])
         if dk > _TINY_CURVATURE:
@@ -147,7 +161,8 @@ def closed_speed_passes(limit: np.ndarray, seg: np.ndarray, accel: float, brake:
 
 @numba.njit(cache=True)
 def closed_profile(x: np.ndarray, y: np.ndarray, v_max: float, lateral: float, wheelbase: float,
-                   steer_rate: float, accel: float, brake: float, curvature: np.ndarray, seg: np.ndarray,
+                   steer_rate: float, accel: float, brake: float, k_lock: float, understeer: float,
+                   curvature: np.ndarray, seg: np.ndarray,
                    limit: np.ndarray, speeds: np.ndarray) -> float:
     """Whole profile of the closed path (x, y) (M,): fills curvature, seg, limit, speeds; returns the lap time."""
     m = x.shape[0]
@@ -155,7 +170,8 @@ def closed_profile(x: np.ndarray, y: np.ndarray, v_max: float, lateral: float, w
         seg[i] = math.hypot(x[(i + 1) % m] - x[i], y[(i + 1) % m] - y[i])
         curvature[i] = local_curvature(x, y, i)
     for i in range(m):
-        limit[i] = local_speed_limit(curvature, seg, i, v_max, lateral, wheelbase, steer_rate)
+        limit[i] = local_speed_limit(curvature, seg, i, v_max, lateral, wheelbase, steer_rate, k_lock,
+                                     understeer)
     return closed_speed_passes(limit, seg, accel, brake, speeds)
 
 
@@ -167,10 +183,22 @@ def closed_lap_time(path: np.ndarray, limits: tuple[float, ...]) -> float:
 
 
 def limit_arguments(vehicle: VehicleParams, settings: SpeedProfileSettings) -> tuple[float, ...]:
-    """(v_max, lateral, wheelbase, steer_rate, accel, brake) for the numba kernels; steer_rate 0 = off."""
-    return (float(vehicle.max_speed), float(vehicle.max_lateral_acceleration * settings.grip_fraction),
-            float(vehicle.wheelbase), float(vehicle.steering_rate) if settings.limit_steering_rate else 0.0,
-            float(vehicle.max_acceleration), float(vehicle.max_braking))
+    """(v_max, lateral, wheelbase, steer_rate, accel, brake, k_lock, understeer) for the numba kernels.
+
+    The car's response folds into the kinematic form: top speed ``speed_ratio * max_speed``; an
+    effective wheelbase ``wheelbase / steering_gain`` (curvature = tan(steer) / that); the steering's
+    rate: its slew limit or, with a lag of time constant tau, ``2 * max_steering / tau`` (lock to lock's
+    initial rate), 0 = off; ``k_lock`` the curvature at full lock, ``understeer`` its fall with speed.
+    The action delay is left out: the optimum is what the car can do at best.
+    """
+    steer_rate = float(vehicle.steering_rate)
+    if vehicle.steering_time_constant > 0:
+        steer_rate = min(steer_rate, 2.0 * vehicle.max_steering / vehicle.steering_time_constant)
+    return (float(vehicle.max_speed * vehicle.speed_ratio),
+            float(vehicle.max_lateral_acceleration * settings.grip_fraction),
+            float(vehicle.wheelbase / vehicle.steering_gain), steer_rate if settings.limit_steering_rate else 0.0,
+            float(vehicle.max_acceleration), float(vehicle.max_braking), max_path_curvature(vehicle),
+            float(vehicle.understeer))
 
 
 def standing_start_lap_time(arc_length: np.ndarray, speeds: np.ndarray, max_acceleration: float) -> float:
@@ -207,7 +235,7 @@ def compute_speed_profile(points: np.ndarray, vehicle: VehicleParams = DEEPRACER
 
 # Lap time of the path ``centre + alpha * normal`` as a function of the offsets ``alpha`` (M,), plus
 # ``roughness_weight`` x sum (kappa_{i+1} - kappa_i)^2 / spacing: what the race-line refinement minimises.
-# ``limits`` below are the six numbers from ``limit_arguments``.
+# ``limits`` below are the eight numbers from ``limit_arguments``.
 
 @numba.njit(cache=True)
 def _roughness_term(curvature: np.ndarray, j: int) -> float:
@@ -217,12 +245,13 @@ def _roughness_term(curvature: np.ndarray, j: int) -> float:
 
 @numba.njit(cache=True)
 def offset_objective(cx, cy, nx, ny, alpha, roughness_weight, spacing, v_max, lateral, wheelbase,
-                     steer_rate, accel, brake) -> float:
+                     steer_rate, accel, brake, k_lock, understeer) -> float:
     """Lap time (s) + roughness_weight x roughness (1/m^3) of the line ``c + alpha n`` (all (M,))."""
     m = alpha.shape[0]
     x, y = cx + alpha * nx, cy + alpha * ny
     curvature, seg, limit, speeds = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
-    lap = closed_profile(x, y, v_max, lateral, wheelbase, steer_rate, accel, brake, curvature, seg, limit, speeds)
+    lap = closed_profile(x, y, v_max, lateral, wheelbase, steer_rate, accel, brake, k_lock, understeer, curvature, seg,
+                         limit, speeds)
     rough = 0.0
     for j in range(m):
         rough += _roughness_term(curvature, j)
@@ -231,7 +260,7 @@ def offset_objective(cx, cy, nx, ny, alpha, roughness_weight, spacing, v_max, la
 
 @numba.njit(cache=True)
 def offset_objective_gradient(cx, cy, nx, ny, alpha, eps, roughness_weight, spacing, v_max, lateral,
-                              wheelbase, steer_rate, accel, brake) -> np.ndarray:
+                              wheelbase, steer_rate, accel, brake, k_lock, understeer) -> np.ndarray:
     """Central finite-difference gradient (s/m, (M,)) of :func:`offset_objective` in each offset.
 
     Moving point i changes only segments i-1, i, curvature at i-1..i+1, speed caps at i-2..i+2 and
@@ -240,7 +269,8 @@ def offset_objective_gradient(cx, cy, nx, ny, alpha, eps, roughness_weight, spac
     m = alpha.shape[0]
     x, y = cx + alpha * nx, cy + alpha * ny
     curvature, seg, limit, speeds = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
-    closed_profile(x, y, v_max, lateral, wheelbase, steer_rate, accel, brake, curvature, seg, limit, speeds)
+    closed_profile(x, y, v_max, lateral, wheelbase, steer_rate, accel, brake, k_lock, understeer, curvature, seg, limit,
+                   speeds)
     saved = np.empty(10)
     value = np.empty(2)
     grad = np.empty(m)
@@ -265,7 +295,8 @@ def offset_objective_gradient(cx, cy, nx, ny, alpha, eps, roughness_weight, spac
                 curvature[(i - 1 + k) % m] = local_curvature(x, y, (i - 1 + k) % m)
             for k in range(5):
                 j = (i - 2 + k) % m
-                limit[j] = local_speed_limit(curvature, seg, j, v_max, lateral, wheelbase, steer_rate)
+                limit[j] = local_speed_limit(curvature, seg, j, v_max, lateral, wheelbase, steer_rate, k_lock,
+                                             understeer)
             rough_after = 0.0
             for k in range(4):
                 rough_after += _roughness_term(curvature, (i - 2 + k) % m)
@@ -284,7 +315,8 @@ def offset_objective_gradient(cx, cy, nx, ny, alpha, eps, roughness_weight, spac
 
 @numba.njit(cache=True)
 def offset_bump_descent(cx, cy, nx, ny, alpha, lower, upper, widths, amplitudes, stride, sweeps,
-                        roughness_weight, spacing, v_max, lateral, wheelbase, steer_rate, accel, brake) -> float:
+                        roughness_weight, spacing, v_max, lateral, wheelbase, steer_rate, accel, brake, k_lock,
+                        understeer) -> float:
     """Derivative-free polish of ``alpha`` (M,, in place) within [lower, upper]; returns the objective.
 
     Tries Gaussian bumps ``a exp(-d^2 / 2 w^2)`` (w in ``widths``, m; a in ``amplitudes``, m) centred
@@ -292,7 +324,7 @@ def offset_bump_descent(cx, cy, nx, ny, alpha, lower, upper, widths, amplitudes,
     of the lap time (the min() of the passes) where gradient steps stall.
     """
     m = alpha.shape[0]
-    args = (roughness_weight, spacing, v_max, lateral, wheelbase, steer_rate, accel, brake)
+    args = (roughness_weight, spacing, v_max, lateral, wheelbase, steer_rate, accel, brake, k_lock, understeer)
     best = offset_objective(cx, cy, nx, ny, alpha, *args)
     trial = alpha.copy()
     for _sweep in range(sweeps):

@@ -4,15 +4,17 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 from laplab.agents.hyperparameters import PRECISIONS, Hyperparameters, from_dict as hyperparameters_from_dict
 from laplab.env.metadata import ModelMetadata, metadata_from_dict
 from laplab.env.spec import ModelSpec, model_spec
 from laplab.sim.state import EpisodeParams
 from laplab.track.registry import DEFAULT_TRACK
+from laplab.vehicle.params import CLASSIC, PRESETS
+from laplab.vehicle.physics import car_for_version, version_for_car
 
-CONFIG_VERSION = 1
+CONFIG_VERSION = 2  # 2: ``vehicle`` names one of DeepRacer's cars; in 1, "deepracer" was laplab's classic car
 
 
 class ConfigError(ValueError):
@@ -48,6 +50,10 @@ class TrainConfig:
       ``reverse``. When given, ``track`` / ``reverse`` are the first of them.
     - ``workers``: rollout workers (``1``: in-process collection, no Ray; more: Ray actors, see
       :mod:`laplab.cluster`); the last session's count (``--resume --workers N`` changes it).
+    - ``vehicle``: the car (a :mod:`laplab.vehicle.params` preset); empty: the one DeepRacer drives for
+      the model metadata's ``version`` (:func:`laplab.vehicle.physics.car_for_version`). A car given
+      explicitly (``--physics``) sets the metadata's version to match, so the model folder, its exports
+      and DeepRacer agree on it.
     - ``cloned_from``: for a clone, the model and checkpoint its weights came from
       (``"SOURCE (checkpoint NAME)"``); None for a model trained from scratch.
     """
@@ -62,7 +68,7 @@ class TrainConfig:
     seed: int = 0
     reverse: bool = False
     alternate_direction: bool = False
-    vehicle: str = "deepracer"
+    vehicle: str = ""
     domain_randomization: bool = False
     num_threads: int | None = None
     precision: str = "auto"
@@ -98,6 +104,13 @@ class TrainConfig:
                                                                                  "hyperparameters"))
         elif self.hyperparameters is not None and not isinstance(self.hyperparameters, Hyperparameters):
             raise ConfigError(f"hyperparameters must be Hyperparameters, got {type(self.hyperparameters).__name__}")
+        if not self.vehicle:
+            object.__setattr__(self, "vehicle", car_for_version(self.model_metadata.version))
+        elif self.vehicle not in PRESETS:
+            raise ConfigError(f"physics: unknown car {self.vehicle!r}; known: {', '.join(sorted(PRESETS))}")
+        version = version_for_car(self.vehicle, self.model_metadata.version)
+        if version != self.model_metadata.version:
+            object.__setattr__(self, "model_metadata", replace(self.model_metadata, version=version))
 
     def metadata(self) -> ModelMetadata:
         return self.model_metadata
@@ -140,6 +153,9 @@ class TrainConfig:
         if unknown:
             raise ConfigError(f"{source}: unknown key {unknown[0]!r}")
         data = dict(data)
+        if int(data.get("version", 1)) < 2 and data.get("vehicle", "deepracer") == "deepracer":
+            data["vehicle"] = CLASSIC.name  # trained before DeepRacer's cars: it keeps the car it learnt on
+        data["version"] = CONFIG_VERSION
         if "model_metadata" in data:
             data["model_metadata"] = metadata_from_dict(data["model_metadata"], f"{source}: model_metadata")
         if data.get("hyperparameters") is not None:

@@ -1,4 +1,8 @@
-"""Race line and speed profile: closed-form speeds, limits, parity of solvers, borders on real tracks."""
+"""Race line and speed profile: closed-form speeds, limits, parity of solvers, borders on real tracks
+(DeepRacer's off-track rule: the line may cross a border by half the wheel track less the margin).
+
+The solver's closed forms use laplab's classic car (a plain kinematic bicycle); DeepRacer's cars' limits
+(understeer at the steering lock, top speed times the speed ratio) have tests of their own at the end."""
 
 from __future__ import annotations
 
@@ -17,7 +21,8 @@ from laplab.track.raceline import (FAST_SETTINGS, RaceLineSettings, compute_race
                                    compute_raceline_for_track, solve_box_qp)
 from laplab.track.speed_profile import (SpeedProfileSettings, compute_speed_profile, limit_arguments,
                                         max_path_curvature, offset_objective, offset_objective_gradient)
-from laplab.vehicle.params import DEEPRACER
+from laplab.track.raceline import line_clearance
+from laplab.vehicle.params import CLASSIC as DEEPRACER, DEEPRACER_V4, DEEPRACER_V5, DEEPRACER_V6
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 REFERENCE_DIR = REPO_ROOT.parent / "shared" / "reference-tracks"
@@ -60,15 +65,20 @@ def polyline_distance(points: np.ndarray, polyline: np.ndarray) -> np.ndarray:
     return np.linalg.norm(rel - t[..., None] * seg, axis=-1).min(axis=1)
 
 
-def assert_inside_with_margin(line, route: np.ndarray, margin: float) -> None:
+def assert_inside_with_margin(line, route: np.ndarray, margin: float, vehicle=DEEPRACER) -> int:
+    """The line keeps ``line_clearance`` (negative: it may cross a border by that much) from both
+    borders: at least one wheel of the car on its origin's path stays on the road. Returns how many
+    points lie beyond a border."""
     inner, outer = route[:, 2:4], route[:, 4:6]
     points = line.points
-    assert PolygonPath(outer).contains_points(points).all(), "race line leaves the outer border"
-    assert not PolygonPath(inner).contains_points(points).any(), "race line crosses the inner border"
-    need = DEEPRACER.half_width + margin - 1e-6
-    for name, border in (("inner", inner), ("outer", outer)):
-        gap = polyline_distance(points, border)
-        assert gap.min() >= need, f"race line within {gap.min():.4f} m of the {name} border (needs {need:.4f})"
+    need = line_clearance(vehicle, margin) - 1e-6
+    outside = 0
+    for name, border, on_road in (("inner", inner, ~PolygonPath(inner).contains_points(points)),
+                                  ("outer", outer, PolygonPath(outer).contains_points(points))):
+        signed = np.where(on_road, 1.0, -1.0) * polyline_distance(points, border)
+        assert signed.min() >= need, f"race line {signed.min():.4f} m from the {name} border (needs {need:.4f})"
+        outside += int((~on_road).sum())
+    return outside
 
 
 def assert_profile_within_limits(speeds, curvature, arc_length, vehicle=DEEPRACER) -> None:
@@ -254,7 +264,7 @@ def test_reversed_track_is_driven_the_other_way():
 def test_too_narrow_track_is_refused_clearly():
     route = stadium_route(width=0.28)
     with pytest.raises(ValueError, match="too narrow for the car"):
-        compute_raceline_for_route(route, DEEPRACER, margin=0.05, refine_min_time=False, settings=FAST_SETTINGS)
+        compute_raceline_for_route(route, DEEPRACER, margin=0.25, refine_min_time=False, settings=FAST_SETTINGS)
     with pytest.raises(ValueError, match="left_width"):
         compute_raceline(route[:, :2], np.ones(3), np.ones(len(route)), DEEPRACER)
 
@@ -290,4 +300,42 @@ def test_reference_tracks(path):
     line = compute_raceline_for_route(route, DEEPRACER, 0.05, settings=FAST_SETTINGS)
     assert_inside_with_margin(line, route, 0.05)
     assert_profile_within_limits(line.speeds, line.curvature, line.arc_length)
+    assert line.lap_time < line.centerline_lap_time
+
+
+# --- DeepRacer's cars -----------------------------------------------------------------------------
+
+def test_line_clearance_is_deepracers_off_track_rule():
+    """Off only when no wheel is on the road: the origin (between the wheels) may be half a track out."""
+    assert line_clearance(DEEPRACER_V6, 0.05) == pytest.approx(0.05 - 0.081)
+    assert line_clearance(DEEPRACER_V6, 0.0) == pytest.approx(-0.5 * DEEPRACER_V6.wheel_track)
+
+
+def test_a_track_narrower_than_the_car_has_a_line_with_wheels_off():
+    """0.25 m of road: the car's body (0.196 m) plus 5 cm from each border would not fit, but with up
+    to three wheels off (DeepRacer's rule) the line exists and leaves the road on the outside of turns."""
+    route = stadium_route(width=0.25)
+    line = compute_raceline_for_route(route, DEEPRACER_V6, margin=0.05, settings=FAST_SETTINGS)
+    assert assert_inside_with_margin(line, route, 0.05, DEEPRACER_V6) > 0
+
+
+@pytest.mark.parametrize("radius", [0.6, 1.0, 2.0])
+def test_understeer_caps_the_speed_a_car_turns_at(radius):
+    """On a circle the v5 car is held by its steering lock's curvature falling with speed
+    (|kappa| (1 + understeer v^2) <= k_lock) or by grip, whichever is lower."""
+    car = DEEPRACER_V5
+    k_lock = max_path_curvature(car)
+    by_lock = math.sqrt(max(k_lock * radius - 1.0, 0.0) / car.understeer)
+    expected = min(car.max_speed * car.speed_ratio, math.sqrt(car.max_lateral_acceleration * radius), by_lock)
+    profile = compute_speed_profile(circle(radius), car)
+    np.testing.assert_allclose(profile.speeds, expected, rtol=1e-9)
+
+
+@pytest.mark.parametrize("car", [DEEPRACER_V4, DEEPRACER_V5, DEEPRACER_V6], ids=lambda c: c.name)
+def test_each_cars_line_on_a_builtin_track(car):
+    route = np.load(BUILTIN_DIR / "classic_2018.npy")
+    line = compute_raceline_for_route(route, car, 0.05, settings=FAST_SETTINGS)
+    assert_inside_with_margin(line, route, 0.05, car)
+    assert line.speeds.max() <= car.max_speed * car.speed_ratio + 1e-9
+    assert (line.speeds ** 2 * np.abs(line.curvature)).max() <= car.max_lateral_acceleration + 1e-6
     assert line.lap_time < line.centerline_lap_time
