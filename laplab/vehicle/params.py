@@ -169,9 +169,9 @@ DEEPRACER_V4 = VehicleParams(
 DEEPRACER_V5 = VehicleParams(
     name="deepracer-v5", description="DeepRacer's kinematics-controller car (simapp 5, model version 5: the "
                                      "console from 2023)",
-    **_URDF, action_delay=0.75, steering_time_constant=0.106, steering_gain=1.448, steering_offset_deg=0.974,
-    steering_saturation_deg=15.7, understeer=0.374, pivot_offset=-0.050, speed_ratio=1.035,
-    speed_time_constant=0.056, max_acceleration=18.3, max_braking=30.0)
+    **_URDF, action_delay=0.75, steering_time_constant=0.107, steering_gain=1.446, steering_offset_deg=0.971,
+    steering_saturation_deg=15.7, understeer=0.374, pivot_offset=-0.050, speed_ratio=1.071,
+    speed_time_constant=0.055, max_acceleration=4.01, max_braking=30.0)
 DEEPRACER_V6 = VehicleParams(
     name="deepracer-v6", description="DeepRacer on AWS's car (simapp 6 on ROS 2: model version 6 and above, and "
                                      "models without a version)",
