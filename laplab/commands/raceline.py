@@ -17,8 +17,6 @@ from laplab.errors import UserError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from laplab.vehicle.params import PRESETS
-
     parser = subparsers.add_parser(
         "raceline", help="optimal race line of a track: lap time, .npy/.csv waypoints and a plot",
         description="Solve (or load from the cache) the fastest line round a track for the simulated car. "
@@ -26,9 +24,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "waypoints x, y in m, first row == last row), .csv (x, y, speed) and .png (coloured by "
                     "speed).")
     parser.add_argument("track", metavar="TRACK", help="track name (laplab tracks list), name@reversed, or .npy path")
-    parser.add_argument("--vehicle", default="deepracer", help=f"car preset ({', '.join(sorted(PRESETS))})")
+    parser.add_argument("--physics", "--vehicle", dest="physics", default="6", metavar="V",
+                        help="DeepRacer's car: 4, 5 or 6 (default 6, DeepRacer on AWS's) or classic (laplab's "
+                             "car before them)")
     parser.add_argument("--margin", type=float, default=0.05,
-                        help="distance the car's body keeps from the borders, m (default 0.05)")
+                        help="distance kept from where the car would be off the track (DeepRacer's rule: no wheel "
+                             "on the road), m (default 0.05)")
     parser.add_argument("--out", type=Path, default=Path("."), help="folder for the files (default: current)")
     parser.add_argument("--fast", action="store_true", help="quicker, coarser solve (0.2 m spacing, fewer iterations)")
     parser.add_argument("--drive", action="store_true",
@@ -49,11 +50,12 @@ def raceline_command(args: argparse.Namespace) -> int:
     from laplab.track.raceline_cache import raceline_cache_path, raceline_for
     from laplab.track.registry import load_track
     from laplab.vehicle.params import vehicle_preset
+    from laplab.vehicle.physics import PhysicsError, resolve_physics
 
     try:
-        vehicle = vehicle_preset(args.vehicle)
-    except ValueError as exc:
-        raise UserError(f"--vehicle: {exc}") from None
+        vehicle = vehicle_preset(resolve_physics(args.physics))
+    except PhysicsError as exc:
+        raise UserError(str(exc)) from None
     if not (np.isfinite(args.margin) and 0.0 <= args.margin <= 1.0):
         raise UserError(f"--margin must be a distance from 0 to 1 m, got {args.margin}")
     track = load_track(args.track)
@@ -68,7 +70,7 @@ def raceline_command(args: argparse.Namespace) -> int:
 
     origin = "loaded from the cache" if cached else f"solved in {seconds:.2f} s"
     print(f"race line of {track.name} ({track.length:.2f} m, {track.nominal_width:.3f} m wide), "
-          f"car {args.vehicle}, margin {args.margin:g} m, {'fast' if args.fast else 'full'} solve, {origin}")
+          f"car {vehicle.name}, margin {args.margin:g} m, {'fast' if args.fast else 'full'} solve, {origin}")
     gain = 100.0 * (1.0 - line.lap_time / line.centerline_lap_time)
     print(f"  optimal lap time      {line.lap_time:8.3f} s")
     print(f"  centre-line lap time  {line.centerline_lap_time:8.3f} s   (race line {gain:.1f} % faster)")
@@ -93,6 +95,9 @@ def raceline_command(args: argparse.Namespace) -> int:
     drive = drive_line(track, line.points, line.speeds, np.array([True, False]), vehicle)
     standing = standing_start_lap_time(line.arc_length, line.speeds, vehicle.max_acceleration)
     print("driven in the simulator (LineFollower, curvature feedforward, from the line's first point):")
+    if vehicle.response_steps > 1.0:
+        print(f"  note: {vehicle.name} answers a command {vehicle.response_steps:.1f} steps late; the follower, "
+              f"made for the line, may leave a line that uses every centimetre of the track")
     finished = True
     for car, (label, predicted) in enumerate((("flying lap    ", line.lap_time), ("standing start", standing))):
         if drive.status[car] != LAP_COMPLETE:

@@ -71,7 +71,9 @@ def test_second_run_reads_the_cache(home, tmp_path, capsys, monkeypatch):
 
 
 def test_drive_reproduces_the_predicted_lap_time(home, tmp_path, capsys):
-    assert main(["raceline", "technical@reversed", "--fast", "--drive", "--out", str(tmp_path)]) == 0
+    # laplab's classic car follows a line within centimetres (DeepRacer's cars answer late: see the note)
+    assert main(["raceline", "technical@reversed", "--fast", "--drive", "--physics", "classic",
+                 "--out", str(tmp_path)]) == 0
     text = capsys.readouterr().out
     ratios = [float(r) for r in re.findall(r"= ([\d.]+) x predicted", text)]
     assert len(ratios) == 2 and all(abs(r - 1.0) <= 0.03 for r in ratios), text
@@ -80,8 +82,8 @@ def test_drive_reproduces_the_predicted_lap_time(home, tmp_path, capsys):
 
 @pytest.mark.parametrize("argv, message", [
     (["classic_2018", "--margin", "-0.1"], "--margin"),
-    (["classic_2018", "--margin", "0.4"], "too narrow"),
-    (["classic_2018", "--vehicle", "bus"], "unknown vehicle preset 'bus'"),
+    (["classic_2018", "--margin", "0.6"], "too narrow"),
+    (["classic_2018", "--physics", "bus"], "--physics 'bus': write 4, 5 or 6"),
     (["no_such_track"], "unknown track 'no_such_track'"),
 ])
 def test_bad_input_is_one_clear_error(home, tmp_path, capsys, argv, message):

@@ -98,13 +98,14 @@ def test_lap_time_in_single_env(pure_pursuit):
     env = TimeTrialEnv(track="oval", model_metadata=CONTINUOUS)
     env.reset(options={"start_ndist": 0.0})
     for _ in range(400):
-        action = continuous_action(pure_pursuit(env.sim), 2.5)[0]
+        action = continuous_action(pure_pursuit(env.sim, 0.9), 2.5)[0]  # DeepRacer's car answers late: look further
         _, _, terminated, truncated, info = env.step(action)
         if terminated or truncated:
             break
     assert info["episode_status"] == "lap_complete" and info["progress"] == 100.0
     assert (info["steps"] - 1) / 15 < info["lap_time"] <= info["steps"] / 15
-    assert env.track.length / 2.5 < info["lap_time"] < env.track.length / 2.5 + 1.0
+    fastest = env.track.length / (2.5 * env.sim.vehicle.speed_ratio)  # on the centre line, at the car's own speed
+    assert 0.98 * fastest < info["lap_time"] < env.track.length / 2.5 + 1.0
 
 
 # ---------------------------------------------------------------- actions and rewards
@@ -235,7 +236,7 @@ def test_lap_time_in_the_vector_env(pure_pursuit):
     speeds = np.array([2.5, 1.5])
     laps = {}
     for _ in range(400):
-        steer = pure_pursuit(env.sim)
+        steer = pure_pursuit(env.sim, 0.9)
         actions = np.vstack([continuous_action(steer[i:i + 1], speeds[i]) for i in range(2)])
         _, rewards, terminated, truncated, info = env.step(actions)
         assert not truncated.any() and (rewards == 0).all()
@@ -249,7 +250,8 @@ def test_lap_time_in_the_vector_env(pure_pursuit):
     assert set(laps) == {0, 1}
     for car, (lap_time, steps) in laps.items():
         assert (steps - 1) / 15 < lap_time <= steps / 15
-        assert env.track.length / speeds[car] < lap_time < env.track.length / speeds[car] + 1.0
+        fastest = env.track.length / (speeds[car] * env.sim.vehicle.speed_ratio)
+        assert 0.98 * fastest < lap_time < env.track.length / speeds[car] + 1.0
     assert laps[0][0] < laps[1][0]
 
 

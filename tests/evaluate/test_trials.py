@@ -16,7 +16,9 @@ from laplab.evaluate.runner import reset_poses
 from laplab.sim.state import IN_PROGRESS
 from laplab.track.geometry import track_from_route
 from laplab.track.projection import project_points, track_arrays
-from laplab.vehicle.params import DEEPRACER
+from laplab.vehicle.params import CLASSIC
+
+DEEPRACER = CLASSIC  # the scripted drivers steer laplab's classic car (no lags): the trial rules are the subject
 
 SPEED = 1.5  # m/s
 # Continuous actions: steering -30..30 deg, speed 0..2 m/s (0 lets a script stop the car).
@@ -104,7 +106,8 @@ def _evaluate(track, behaviours, **settings):
     driver = ScriptedDriver(behaviours)
     settings.setdefault("trials", len(behaviours))
     settings.setdefault("force", True)
-    result = evaluate_policy(driver, track, EvaluationSettings(**settings), spec=model_spec(METADATA))
+    result = evaluate_policy(driver, track, EvaluationSettings(**settings), spec=model_spec(METADATA),
+                             vehicle=CLASSIC)
     return result, driver
 
 

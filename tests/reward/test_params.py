@@ -17,7 +17,9 @@ import pytest
 from laplab.reward.params import PARAMS_KEYS, ParamsBuilder, heading_deg
 from laplab.sim.simulator import Simulator
 from laplab.sim.state import EpisodeParams
-from laplab.vehicle.params import DEEPRACER
+from laplab.vehicle.params import CLASSIC
+
+DEEPRACER = CLASSIC  # laplab's classic car: the closed forms below (one step from rest) hold for it
 
 RADIUS, WIDTH, SEGMENTS = 3.0, 1.0, 400
 OFFSET = DEEPRACER.reference_offset
@@ -31,7 +33,7 @@ BOOL_KEYS = ("all_wheels_on_track", "is_left_of_center", "is_offtrack", "is_cras
 
 @pytest.fixture()
 def sim(circle_track):
-    simulator = Simulator(circle_track, 2, episode=EpisodeParams(start_ndist=0.0, round_robin_advance=0.0))
+    simulator = Simulator(circle_track, 2, CLASSIC, episode=EpisodeParams(start_ndist=0.0, round_robin_advance=0.0))
     simulator.reset()
     return simulator
 

@@ -174,7 +174,9 @@ def test_full_lap_completes_in_either_direction(reverse, pure_pursuit):
     assert STATUS_NAMES[sim.state.status[0]] == "lap_complete"
     assert progress[-1] == 100.0 and np.all(np.diff(progress) >= 0)
     lap_time = sim.state.lap_time[0]
-    assert track.length / 1.5 < lap_time < track.length / 1.5 + 1.5  # the lap at ~1.5 m/s, plus the launch
+    speed = 1.5 * sim.vehicle.speed_ratio  # DeepRacer's cars run a little faster than commanded
+    # the lap at ~1.5 m/s, plus the launch (the car may cut the corners by a few centimetres)
+    assert 0.98 * track.length / speed < lap_time < track.length / speed + 1.5
     assert sim.state.direction[0] == int(reverse)
 
 

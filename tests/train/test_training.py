@@ -87,10 +87,10 @@ def test_learning_improves_progress():
     hyper = {"num_episodes_between_training": 10, "num_epochs": 10, "batch_size": 64}
     trainer = create_training("learner", small_config(max_episodes=10**6, hyper=hyper))
     reports = []
-    trainer.run(callbacks=(reports.append,), should_stop=lambda: len(reports) >= 12)
+    trainer.run(callbacks=(reports.append,), should_stop=lambda: len(reports) >= 20)
     first, last = reports[0], reports[-1]
     assert max(r.mean_progress for r in reports[-3:]) > first.mean_progress + 15, [r.mean_progress for r in reports]
-    assert last.episodes == 120
+    assert last.episodes == 200
 
 
 def test_a_model_name_is_immutable():
