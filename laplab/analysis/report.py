@@ -25,6 +25,7 @@ from laplab.analysis.plots import (PlotStyle, iteration_range_text, plot_action_
 from laplab.store.atomic import atomic_write_text, read_json
 from laplab.store.layout import ModelFolder
 from laplab.track.geometry import Track
+from laplab.vehicle.physics import car_of_config
 
 INDEX_NAME = "index.html"
 
@@ -296,7 +297,7 @@ def _evaluation_html(context: ReportContext, evaluation: Evaluation, lines: dict
         key = track.name
         if key not in lines:
             try:
-                lines[key] = _raceline(track, context.config.get("vehicle", "deepracer"))
+                lines[key] = _raceline(track, car_of_config(context.config))
             except (ValueError, RuntimeError, ArithmeticError) as exc:
                 lines[key] = None
                 parts.append(_note(f"No race line: {exc}"))
@@ -311,7 +312,7 @@ def _evaluation_html(context: ReportContext, evaluation: Evaluation, lines: dict
         parts.append(_note("This evaluation has no simtrace."))
     elif track is None:
         parts.append(_note(track_problem or "no track"))
-    vehicle = context.config.get("vehicle", "deepracer")
+    vehicle = car_of_config(context.config)
     optimal = _optimal_lap_time(evaluation, track, vehicle, line) if evaluation.trials else None
     parts.append(_trial_table(evaluation, optimal))
     parts.append(_summary_facts(evaluation))

@@ -11,8 +11,8 @@ from laplab.env.metadata import ModelMetadata, metadata_from_dict
 from laplab.env.spec import ModelSpec, model_spec
 from laplab.sim.state import EpisodeParams
 from laplab.track.registry import DEFAULT_TRACK
-from laplab.vehicle.params import CLASSIC, PRESETS
-from laplab.vehicle.physics import car_for_version, version_for_car
+from laplab.vehicle.params import PRESETS
+from laplab.vehicle.physics import car_for_version, car_of_config, version_for_car
 
 CONFIG_VERSION = 2  # 2: ``vehicle`` names one of DeepRacer's cars; in 1, "deepracer" was laplab's classic car
 
@@ -153,8 +153,7 @@ class TrainConfig:
         if unknown:
             raise ConfigError(f"{source}: unknown key {unknown[0]!r}")
         data = dict(data)
-        if int(data.get("version", 1)) < 2 and data.get("vehicle", "deepracer") == "deepracer":
-            data["vehicle"] = CLASSIC.name  # trained before DeepRacer's cars: it keeps the car it learnt on
+        data["vehicle"] = car_of_config(data)  # a folder from before DeepRacer's cars keeps the car it learnt on
         data["version"] = CONFIG_VERSION
         if "model_metadata" in data:
             data["model_metadata"] = metadata_from_dict(data["model_metadata"], f"{source}: model_metadata")

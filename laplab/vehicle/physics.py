@@ -79,6 +79,19 @@ def version_for_car(car: str, current: str) -> str:
     return wanted
 
 
+def car_of_config(config: dict) -> str:
+    """The car of a model folder's ``laplab.json`` (a dict as stored): its ``vehicle``; in folders written
+    before DeepRacer's cars (config version 1, ``"deepracer"``), laplab's classic car, which they trained on;
+    with none, the car of its metadata's version."""
+    vehicle = config.get("vehicle")
+    if int(config.get("version", 1) or 1) < 2 and vehicle in (None, "deepracer"):
+        return CLASSIC.name
+    if vehicle:
+        return str(vehicle)
+    metadata = config.get("model_metadata")
+    return car_for_version(metadata.get("version") if isinstance(metadata, dict) else None)
+
+
 def describe_car(car: str) -> str:
     """One line on a car for people: its name and what it is."""
     preset = PRESETS.get(car)
