@@ -3,7 +3,9 @@
 (a) simulator + STATE observation, no reward function (through TimeTrialVectorEnv.step, and the
     bare Simulator.step kernel for comparison);
 (b) the same with DeepRacer's follow-the-centre-line example reward function;
-(c) Gymnasium's CarRacing-v3 (Box2D, one car) in the same run as the peer, as a ratio.
+(c) Gymnasium's CarRacing-v3 (Box2D, one car) in the same run as the peer, as a ratio;
+(d) (a) at N = 1024 for each of laplab's cars (DeepRacer's physics generations and laplab's classic car);
+    the rows above drive the default car (DeepRacer on AWS's, deepracer-v6).
 
 Usage: python bench/env_speed.py [--repeats 5] [--steps 300]
 """
@@ -19,11 +21,13 @@ import numpy as np
 from laplab.env import TimeTrialVectorEnv
 from laplab.env.vector import EXAMPLES_DIR
 from laplab.track.registry import load_track
+from laplab.vehicle.params import DEEPRACER, PRESETS
 
 
-def time_vector_env(num_cars: int, reward, steps: int, repeats: int) -> tuple[float, float]:
+def time_vector_env(num_cars: int, reward, steps: int, repeats: int, vehicle=DEEPRACER) -> tuple[float, float]:
     """(median car-steps/s, median microseconds per step call)."""
-    env = TimeTrialVectorEnv(num_cars, track=load_track("classic_2018"), reward_function=reward, keep_params=False)
+    env = TimeTrialVectorEnv(num_cars, track=load_track("classic_2018"), reward_function=reward, keep_params=False,
+                             vehicle=vehicle)
     env.reset(seed=0)
     actions = np.random.default_rng(0).integers(0, env.single_action_space.n, size=(steps, num_cars))
     for k in range(20):
@@ -92,6 +96,9 @@ def main() -> None:
         rows.append(("(a) VectorEnv.step, STATE, no reward", n, *time_vector_env(n, None, args.steps, args.repeats)))
         rows.append(("(b) VectorEnv.step, STATE, follow_centerline", n,
                      *time_vector_env(n, EXAMPLES_DIR / "follow_centerline.py", args.steps, args.repeats)))
+    for car in PRESETS.values():
+        rows.append((f"(d) VectorEnv.step, STATE, {car.name}", 1024, *time_vector_env(1024, None, args.steps,
+                                                                                     args.repeats, car)))
     for name, n, rate, latency in rows:
         ratio = f"{rate / peer:10.0f}x" if peer else "n/a"
         print(f"{name:44s} {n:5d} {rate:14,.0f} {latency:10.1f} {ratio:>12s}")

@@ -22,8 +22,8 @@ PARALLEL_THRESHOLD = 256  # cars: below it the serial loop wins (1.8 us a car vs
 
 @nb.njit(cache=True, inline="always")
 def _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing):
-    dc = vc[:16]  # dynamics_constants(); then dt, reference offset, half track, max speed, max steering
-    dt, ref_offset, half_track, max_speed, max_steer = vc[16], vc[17], vc[18], vc[19], vc[20]
+    dc = vc[:19]  # dynamics_constants(); then dt, reference offset, half track, max speed, max steering
+    dt, ref_offset, half_track, max_speed, max_steer = vc[19], vc[20], vc[21], vc[22], vc[23]
     wheelbase = dc[0]
     max_steps, reversed_steps, immobilized_steps, immobilized_distance = rules
     geo = fwd if st.direction[i] == 0 else rev
@@ -117,7 +117,7 @@ def step_kernel(st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, 
 @nb.njit(cache=True)
 def observe_kernel(st, fwd, rev, vc, obs, look_count, look_spacing, mask):
     """Fill ``obs`` rows of the cars in ``mask`` from their current state (after a reset)."""
-    max_speed, max_steer = vc[19], vc[20]
+    max_speed, max_steer = vc[22], vc[23]
     for i in range(st.x.shape[0]):
         if mask[i] and obs.shape[1] > 0:
             geo = fwd if st.direction[i] == 0 else rev

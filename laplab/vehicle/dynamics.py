@@ -31,11 +31,16 @@ class CarState(NamedTuple):
 
 
 def dynamics_constants(params: VehicleParams) -> tuple:
-    """The numbers the kernels read (:func:`advance_car`'s ``dc``), in a fixed order."""
+    """The numbers the kernels read (:func:`advance_car`'s ``dc``), in a fixed order: the last three
+    are the decision step and the steering's and speed's lag factors over one sub-step of it, so the
+    simulator's fixed step computes no exponential."""
+    h = params.dt / params.substeps
     return (params.wheelbase, params.steering_rate, params.max_acceleration, params.max_braking,
             params.max_lateral_acceleration, params.max_steering, int(params.substeps),
-            params.action_delay, math.radians(params.steering_saturation_deg), params.steering_time_constant, params.steering_gain, params.steering_offset,
-            params.understeer, params.pivot_offset, params.speed_ratio, params.speed_time_constant)
+            params.action_delay, math.radians(params.steering_saturation_deg), params.steering_time_constant,
+            params.steering_gain, params.steering_offset, params.understeer, params.pivot_offset,
+            params.speed_ratio, params.speed_time_constant, params.dt,
+            _lag_factor(h, params.steering_time_constant), _lag_factor(h, params.speed_time_constant))
 
 
 @nb.njit(cache=True, inline="always")
@@ -51,10 +56,11 @@ def advance_car(x, y, yaw, speed, steer, prev_steer, prev_speed, cmd_steer, cmd_
     ``cmd_*`` the new one; ``dc`` is :func:`dynamics_constants`' tuple.
     """
     (wheelbase, steer_rate, max_accel, max_brake, max_lat, max_steer, substeps, delay, saturation, steer_tau,
-     steer_gain, steer_offset, understeer, pivot, speed_ratio, speed_tau) = dc
+     steer_gain, steer_offset, understeer, pivot, speed_ratio, speed_tau, nominal_dt, a_steer, a_speed) = dc
     h = dt / substeps
-    a_steer = _lag_factor(h, steer_tau)
-    a_speed = _lag_factor(h, speed_tau)
+    if dt != nominal_dt:  # a replayed log's step: its own lag factors
+        a_steer = _lag_factor(h, steer_tau)
+        a_speed = _lag_factor(h, speed_tau)
     late = delay * substeps
     prev_steer = min(max(prev_steer, -max_steer), max_steer)
     cmd_steer = min(max(cmd_steer, -max_steer), max_steer)
