@@ -6,6 +6,8 @@ import argparse
 
 from rich.console import Console
 
+MAX_TIMEOUT_S = 3600.0  # seconds one call may take at most (a longer wait is a hang, not a check)
+
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser("reward", help="work with reward functions")
@@ -19,11 +21,17 @@ def register(subparsers) -> None:
 
 
 def run_validate(args: argparse.Namespace) -> int:
+    import math
+
     from laplab.env.vector import resolve_metadata
+    from laplab.errors import UserError
     from laplab.reward.loader import load_reward_function
     from laplab.reward.validate import validate_reward_function
     from laplab.track.registry import DEFAULT_TRACK, load_track
 
+    if not (math.isfinite(args.timeout) and 0 < args.timeout <= MAX_TIMEOUT_S):
+        raise UserError(f"--timeout must be a number of seconds above 0 and at most {MAX_TIMEOUT_S:g}, "
+                        f"got {args.timeout:g}", field="--timeout")
     console = Console(highlight=False, soft_wrap=True)
     track = load_track(args.track or DEFAULT_TRACK)
     metadata = resolve_metadata(args.model_metadata)
