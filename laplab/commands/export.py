@@ -143,8 +143,23 @@ def export_deepracer(args: argparse.Namespace) -> int:
     return 0
 
 
+def check_out_path(out: Path | str | None, option: str = "--out") -> None:
+    """:class:`UserError` when a local ``out`` cannot be written: a folder above it is a regular file
+    (checked before anything is pulled, converted or written)."""
+    if not isinstance(out, Path):
+        return
+    for parent in out.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UserError(f"{option} {out}: {parent} is a file, not a folder, so nothing can be written "
+                                f"below it; give a path in an existing folder (or one laplab may create).",
+                                field=option)
+            return
+
+
 def export_command(args: argparse.Namespace) -> int:
     from laplab.commands.store_option import store_session, without_traces
+    check_out_path(args.out)
     with store_session(args, "export") as store:
         if store:
             store.pull(args.model, (args.checkpoint,), without_traces)
