@@ -106,7 +106,7 @@ def _overrides(args: argparse.Namespace) -> dict:
            "max_time_s": parse_duration(args.max_time) if args.max_time else None}
     if args.model_metadata:
         out["model_metadata"] = load_model_metadata(args.model_metadata).to_dict()
-    if args.hyperparameters and args.hyperparameters.lstrip().startswith("{"):  # the JSON itself
+    if args.hyperparameters and args.hyperparameters.lstrip().startswith(("{", "[", '"')):  # JSON, not a file
         out["hyperparameters"] = parse_hyperparameters(args.hyperparameters, "--hyperparameters").to_dict()
     elif args.hyperparameters:
         out["hyperparameters"] = load_hyperparameters(args.hyperparameters).to_dict()
@@ -219,13 +219,15 @@ def run_train(args: argparse.Namespace) -> int:
     if not args.resume and not args.name:
         raise UserError("name the new model with --name NAME (or continue one with --resume NAME)")
     if args.resume:
+        kept = (("--reward", args.reward, "reward function"), ("--track", args.track, "tracks"),
+                ("--hyperparameters", args.hyperparameters, "hyperparameters"),
+                ("--model-metadata", args.model_metadata, "model_metadata.json"))
+        for option, value, what in kept:
+            if value:  # refused, not checked and then ignored
+                raise UserError(f"a resumed job keeps its {what} (laplab.json records it); to train with another, "
+                                f"`laplab clone {args.resume} NEW {option} ...` (a clone keeps the action space "
+                                "and the sensors).", field=option)
         overrides = _overrides(args)
-        if args.reward:
-            raise UserError("a resumed job keeps its reward function; to train with another one, "
-                            f"`laplab clone {args.resume} NEW --reward FILE`")
-        if overrides["track"] or overrides["tracks"]:
-            raise UserError("a resumed job keeps its tracks; to train on others, "
-                            f"`laplab clone {args.resume} NEW --track ...`")
     else:
         values = {k: v for k, v in _overrides(args).items() if v is not None}
         values["domain_randomization"] = bool(args.domain_randomization)

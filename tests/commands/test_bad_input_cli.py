@@ -52,3 +52,84 @@ def test_export_out_below_a_regular_file(laplab_home, tmp_path, capsys):
 def test_store_with_an_endpoint_that_is_not_a_url(laplab_home, monkeypatch, capsys):
     monkeypatch.setenv("AWS_ENDPOINT_URL", "not a url")
     _refused(capsys, ["evaluate", "base", "--store", "s3://bucket/models"], "AWS_ENDPOINT_URL", "'not a url'")
+
+
+def _edit_json(path, change):
+    data = json.loads(path.read_text())
+    change(data)
+    path.write_text(json.dumps(data))
+
+
+@pytest.mark.parametrize("change, key", [
+    (lambda d: d.update(sensor=["FRONT_FACING_CAMERA"]), "'sensor'"),
+    (lambda d: d["action_space"].pop(), "'action_space'"),
+    (lambda d: d.update(action_space={"steering_angle": {"low": -30, "high": 30},
+                                      "speed": {"low": 1, "high": 4}}, action_space_type="continuous"),
+     "'action_space"),
+])
+def test_model_metadata_edited_after_training(laplab_home, tmp_path, capsys, change, key):
+    folder = _copy_model("base", "edited")
+    try:
+        _edit_json(folder.model_metadata, change)
+        before = sorted(p.name for p in folder.root.rglob("*"))
+        for argv in (["evaluate", "edited"], ["export", "edited", "--out", str(tmp_path / "e.tar.gz")],
+                     ["export", "edited", "--format", "onnx", "--out", str(tmp_path / "onnx")]):
+            _refused(capsys, argv, str(folder.model_metadata), key, "changed after training")
+        assert sorted(p.name for p in folder.root.rglob("*")) == before
+        assert not (tmp_path / "e.tar.gz").exists() and not (tmp_path / "onnx").exists()
+    finally:
+        shutil.rmtree(folder.root)
+
+
+def test_resume_with_garbage_hyperparameters_json(laplab_home, capsys):
+    folder = _copy_model("base", "garbage-hp")
+    try:
+        folder.hyperparameters.write_text("{not json")
+        _refused(capsys, ["train", "--resume", "garbage-hp", "--max-episodes", "40"],
+                 str(folder.hyperparameters))
+        folder.hyperparameters.write_text(json.dumps({"num_epochs": 7}))
+        _refused(capsys, ["train", "--resume", "garbage-hp", "--max-episodes", "40"],
+                 str(folder.hyperparameters), "'num_epochs'")
+    finally:
+        shutil.rmtree(folder.root)
+
+
+def test_resume_when_every_checkpoint_file_is_gone(laplab_home, capsys):
+    folder = _copy_model("base", "no-ckpt")
+    try:
+        for path in folder.model_dir.glob("*.ckpt*"):
+            path.unlink()
+        _refused(capsys, ["train", "--resume", "no-ckpt", "--max-episodes", "40"],
+                 str(folder.deepracer_checkpoints), "no checkpoint file")
+        assert not list(folder.model_dir.glob("*.ckpt*"))
+    finally:
+        shutil.rmtree(folder.root)
+
+
+@pytest.mark.parametrize("option, value", [("--hyperparameters", '{"num_epochs": 5}'),
+                                           ("--model-metadata", "model_metadata.json")])
+def test_resume_refuses_what_it_would_ignore(laplab_home, capsys, option, value):
+    if option == "--model-metadata":
+        value = str(model_folder("base").model_metadata)
+    _refused(capsys, ["train", "--resume", "base", option, value], option, "clone")
+
+
+def test_hyperparameters_given_as_a_json_list(laplab_home, capsys):
+    _refused(capsys, ["train", "--name", "list-hp", "--hyperparameters", "[1, 2]"],
+             "--hyperparameters", "JSON object")
+    assert not model_folder("list-hp").exists()
+
+
+def test_stack_size_out_of_range(laplab_home, capsys):
+    _refused(capsys, ["train", "--name", "big-stack", "--hyperparameters", '{"stack_size": 1000000}'],
+             "'stack_size'", "from 1 to 8")
+    assert not model_folder("big-stack").exists()
+
+
+def test_too_many_actions(laplab_home, tmp_path, capsys):
+    path = tmp_path / "model_metadata.json"
+    path.write_text(json.dumps({"action_space": [{"steering_angle": 0, "speed": 1.0}] * 65}))
+    _refused(capsys, ["train", "--name", "many", "--model-metadata", str(path)], str(path), "1 to 64")
+    path.write_text(json.dumps({"action_space": [{"steering_angle": 0, "speed": 1.0}]}) + " " * (300 << 10))
+    _refused(capsys, ["train", "--name", "many", "--model-metadata", str(path)], str(path), "KiB")
+    assert not model_folder("many").exists()
