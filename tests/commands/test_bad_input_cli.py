@@ -133,3 +133,16 @@ def test_too_many_actions(laplab_home, tmp_path, capsys):
     path.write_text(json.dumps({"action_space": [{"steering_angle": 0, "speed": 1.0}]}) + " " * (300 << 10))
     _refused(capsys, ["train", "--name", "many", "--model-metadata", str(path)], str(path), "KiB")
     assert not model_folder("many").exists()
+
+
+def test_report_on_a_simtrace_csv_that_is_not_text(laplab_home, tmp_path, capsys):
+    folder = _copy_model("base", "garbage-trace")
+    try:
+        (trace,) = folder.training_simtrace_dir.glob("*.csv")
+        trace.write_bytes(trace.read_bytes()[:200] + bytes(range(128, 256)) * 4)
+        _refused(capsys, ["report", "garbage-trace", "--out", str(tmp_path / "report")], str(trace), "UTF-8")
+        folder.training_metrics.write_bytes(b"\xff\xfe{")
+        _refused(capsys, ["report", "garbage-trace", "--out", str(tmp_path / "report")],
+                 str(folder.training_metrics), "UTF-8")
+    finally:
+        shutil.rmtree(folder.root)
