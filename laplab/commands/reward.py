@@ -36,7 +36,8 @@ def run_validate(args: argparse.Namespace) -> int:
     track = load_track(args.track or DEFAULT_TRACK)
     metadata = resolve_metadata(args.model_metadata)
     reward_fn = load_reward_function(args.file, max_speed=metadata.action_space.max_speed)
-    report = validate_reward_function(reward_fn, track, metadata.action_space.sweep_actions(), timeout_s=args.timeout)
+    report = validate_reward_function(reward_fn, track, metadata.action_space.sweep_actions(), timeout_s=args.timeout,
+                                      isolate=True)
     kind = "2018 signature" if reward_fn.is_legacy else "params dict"
     if report.passed:
         console.print(f"[green]PASS[/green] {args.file} ({kind}) on {track.name}: {report.calls} states, "

@@ -113,11 +113,25 @@ def _overrides(args: argparse.Namespace) -> dict:
     return out
 
 
-class _StopFlag:
-    """SIGINT / SIGTERM set a flag the trainer polls; a second Ctrl-C interrupts at once."""
+class _Flag:
+    """A flag a signal handler may set at any moment, even while it is being set or read (a
+    threading.Event takes a lock: a second signal arriving inside ``set()`` deadlocked on it)."""
 
     def __init__(self):
-        self.event = threading.Event()
+        self._set = False
+
+    def set(self) -> None:
+        self._set = True
+
+    def is_set(self) -> bool:
+        return self._set
+
+
+class _StopFlag:
+    """SIGINT / SIGTERM set a flag the trainer polls; a second one (either) interrupts at once."""
+
+    def __init__(self):
+        self.event = _Flag()
         self._previous = {}
         self._depth = 0  # entered again by run_trainer: the handlers are installed once
 
@@ -129,7 +143,7 @@ class _StopFlag:
         return self
 
     def _handle(self, signum, frame):
-        if self.event.is_set() and signum == signal.SIGINT:
+        if self.event.is_set():  # asked twice: stop now (the model keeps its last checkpoint)
             raise KeyboardInterrupt
         self.event.set()
 

@@ -39,7 +39,7 @@ def load_and_validate_reward(config: TrainConfig, track: Track, path: Path | Non
     """Load the job's reward function and run the validation sweep on ``track``; raises RewardFunctionError."""
     action_space = config.model_metadata.action_space
     reward_fn = load_reward_function(path or reward_file(config), max_speed=action_space.max_speed)
-    report = validate_reward_function(reward_fn, track, action_space.sweep_actions())
+    report = validate_reward_function(reward_fn, track, action_space.sweep_actions(), isolate=True)
     if not report.passed:
         raise report.error
     return reward_fn
