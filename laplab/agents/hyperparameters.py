@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from laplab.env.metadata import MAX_STACK_SIZE
+from laplab.errors import UserError
 
 # The networks' arithmetic in training (laplab's option, not a DeepRacer hyperparameter): see
 # ``laplab.agents.networks.set_compute_precision``.
@@ -73,8 +74,10 @@ class Hyperparameters:
         return 1.0 + fraction * (self.e_greedy_value - 1.0)
 
 
-class HyperparameterError(ValueError):
+class HyperparameterError(UserError, ValueError):
     """A hyperparameters file or dict that DeepRacer would not accept."""
+
+    default_field = "hyperparameters"
 
 
 # key -> (kind, low, high, description of the valid values)

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from laplab.errors import UserError
 from laplab.vehicle.params import DEEPRACER, VehicleParams
 
 # laplab's default: the DeepRacer console's largest discrete grid (steering granularity 7 up to 30
@@ -16,8 +17,10 @@ from laplab.vehicle.params import DEEPRACER, VehicleParams
 DEFAULT_DISCRETE_ACTIONS = tuple((float(steer), speed) for steer in range(-30, 31, 10) for speed in (1.33, 2.67, 4.0))
 
 
-class ActionSpaceError(ValueError):
+class ActionSpaceError(UserError, ValueError):
     """An action space in model_metadata.json that DeepRacer would not accept."""
+
+    default_field = "model_metadata"
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ from pathlib import Path
 from laplab.env.action_space import (
     MAX_DISCRETE_ACTIONS, ActionSpace, ActionSpaceError, default_action_space, parse_action_space,
 )
+from laplab.errors import UserError
 
 CAMERA_SENSORS = ("FRONT_FACING_CAMERA", "STEREO_CAMERAS", "LEFT_CAMERA")
 LIDAR_SENSORS = ("LIDAR", "SECTOR_LIDAR", "DISCRETIZED_SECTOR_LIDAR")
@@ -22,8 +23,10 @@ MAX_STACK_SIZE = 8
 MAX_METADATA_BYTES = 256 << 10  # a model_metadata.json of 64 actions and every sensor is ~5 KiB
 
 
-class MetadataError(ValueError):
+class MetadataError(UserError, ValueError):
     """A model_metadata.json that DeepRacer (or laplab) would not accept."""
+
+    default_field = "model_metadata"
 
 
 @dataclass(frozen=True)

@@ -9,13 +9,14 @@ from dataclasses import dataclass, field, fields
 from laplab.agents.hyperparameters import PRECISIONS, Hyperparameters, from_dict as hyperparameters_from_dict
 from laplab.env.metadata import ModelMetadata, metadata_from_dict
 from laplab.env.spec import ModelSpec, model_spec
+from laplab.errors import UserError
 from laplab.sim.state import EpisodeParams
 from laplab.track.registry import DEFAULT_TRACK
 
 CONFIG_VERSION = 1
 
 
-class ConfigError(ValueError):
+class ConfigError(UserError, ValueError):
     """A training option out of range."""
 
 
