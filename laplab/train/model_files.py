@@ -23,10 +23,13 @@ class ModelFilesError(UserError):
     match laplab.json; ``field`` is ``"<file>: <key>"`` (or the file alone when it cannot be read)."""
 
 
-def check_model_files(folder: ModelFolder, config: TrainConfig | None = None, what: str = "use") -> TrainConfig:
+def check_model_files(folder: ModelFolder, config: TrainConfig | None = None, what: str = "use",
+                      hyperparameter_keys: tuple[str, ...] | None = None) -> TrainConfig:
     """The folder's config (``config``, else read from laplab.json), after checking that its
     model_metadata.json and ip/hyperparameters.json say the same; :class:`ModelFilesError` if not.
-    ``what``: the verb of the message ("evaluate", "export", "resume")."""
+    ``what``: the verb of the message ("load", "export", "resume"). ``hyperparameter_keys``: the
+    hyperparameters compared (None: all; loading a policy needs only ``stack_size``, and a folder
+    written before laplab.json recorded every hyperparameter may differ in the others)."""
     from laplab.agents.hyperparameters import HyperparameterError, from_dict as hyperparameters_from_dict
     from laplab.env.action_space import ActionSpaceError
     from laplab.env.metadata import MetadataError, metadata_from_dict
@@ -50,7 +53,10 @@ def check_model_files(folder: ModelFolder, config: TrainConfig | None = None, wh
         except (MetadataError, ActionSpaceError, HyperparameterError) as exc:
             raise ModelFilesError(f"cannot {what} model {folder.name!r}: {exc} {_restore(path, key_in_config)}",
                                   field=path.name) from None
-        differing = [key for key in sorted(set(found) | set(trained)) if found.get(key) != trained.get(key)]
+        keys = sorted(set(found) | set(trained))
+        if key_in_config == "hyperparameters" and hyperparameter_keys is not None:
+            keys = [key for key in keys if key in hyperparameter_keys]
+        differing = [key for key in keys if found.get(key) != trained.get(key)]
         if differing:
             key = differing[0]
             raise ModelFilesError(
