@@ -18,12 +18,11 @@ Reward code is recognised as in :mod:`laplab.reward.watchdog` (user modules are 
 from __future__ import annotations
 
 import os
-import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from laplab.reward.guards import ExitCalled, StreamCloseCalled, install_guards, on_self_signal
+from laplab.reward.guards import ExitCalled, StreamCloseCalled, die_with_parent, install_guards, on_self_signal
 from laplab.reward.watchdog import is_user_frame
 
 __all__ = ["ExitCalled", "StreamCloseCalled", "cap_reward_output", "die_with_parent", "guard_exit_calls",
@@ -31,21 +30,6 @@ __all__ = ["ExitCalled", "StreamCloseCalled", "cap_reward_output", "die_with_par
 
 REWARD_LOG = Path("logs") / "reward-output.log"
 _PENDING_LIMIT = 4 << 20  # bytes of reward output kept in memory until the job knows its folder
-
-
-def die_with_parent() -> None:
-    """Ask Linux to SIGKILL this process when the process that started it ends (no-op elsewhere)."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        import ctypes
-        libc = ctypes.CDLL(None, use_errno=True)
-        parent = os.getppid()
-        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
-        if os.getppid() != parent:  # the supervisor died before prctl took effect
-            os._exit(1)
-    except (OSError, AttributeError):
-        pass
 
 
 def _user_code_on_stack() -> bool:

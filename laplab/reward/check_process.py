@@ -23,7 +23,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from laplab.reward.errors import RewardFunctionError, describe_exception, summarize_params
-from laplab.reward.guards import install_guards, on_self_signal
+from laplab.reward.guards import die_with_parent, install_guards, on_self_signal
 from laplab.reward.loader import RewardFunction
 from laplab.reward.timeout import call_with_timeout
 
@@ -82,6 +82,7 @@ def _watch(process, receiver, progress, dump, reward_fn, params_list, timeout_s)
 
 
 def _child(sender, reward_fn, params_list, timeout_s, progress, dump_fd) -> None:
+    die_with_parent()  # a caller killed with SIGKILL leaves no orphan looping in the reward function
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is for the caller: it stops the check
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     faulthandler.register(_DUMP_SIGNAL, file=dump_fd, all_threads=False)

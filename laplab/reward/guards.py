@@ -15,6 +15,9 @@ is made from the user's reward code (modules named ``laplab_user_reward_<n>``, s
   dies as asked), but first the hook set with
   :func:`on_self_signal` is told the file and line they were called from, so that whoever reports
   the death can name them.
+
+:func:`die_with_parent` (Linux) makes a job, or the check's child, die with the process that
+started it, so that killing that one with SIGKILL leaves no orphan running a reward function.
 """
 
 from __future__ import annotations
@@ -125,6 +128,21 @@ def install_guards() -> None:
             continue
         wrapper.laplab_guard = True
         setattr(module, name, wrapper)
+
+
+def die_with_parent() -> None:
+    """Ask Linux to SIGKILL this process when the process that started it ends (no-op elsewhere)."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+        libc = ctypes.CDLL(None, use_errno=True)
+        parent = os.getppid()
+        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
+        if os.getppid() != parent:  # the supervisor died before prctl took effect
+            os._exit(1)
+    except (OSError, AttributeError):
+        pass
 
 
 def _signal_name(sig: int) -> str:
