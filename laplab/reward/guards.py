@@ -99,17 +99,18 @@ def install_guards() -> None:
                 pass
 
     def guarded_kill(pid: int, sig: int) -> None:
-        if sig and pid in (0, os.getpid(), -os.getpgrp()):
+        if pid in (0, os.getpid(), -os.getpgrp()) and _ends_process(sig):
             announce(f"os.kill({pid}, {_signal_name(sig)})")
         real_kill(pid, sig)
 
     def guarded_killpg(pgid: int, sig: int) -> None:
-        if sig and pgid in (0, os.getpgrp()):
+        if pgid in (0, os.getpgrp()) and _ends_process(sig):
             announce(f"os.killpg({pgid}, {_signal_name(sig)})")
         real_killpg(pgid, sig)
 
     def guarded_raise(sig: int) -> None:
-        announce(f"signal.raise_signal({_signal_name(sig)})")
+        if _ends_process(sig):
+            announce(f"signal.raise_signal({_signal_name(sig)})")
         real_raise(sig)
 
     def guarded_abort() -> None:
@@ -143,6 +144,24 @@ def die_with_parent() -> None:
             os._exit(1)
     except (OSError, AttributeError):
         pass
+
+
+_NOT_ENDING = ("SIGCHLD", "SIGURG", "SIGWINCH", "SIGCONT", "SIGSTOP", "SIGTSTP", "SIGTTIN", "SIGTTOU")
+_IGNORED_BY_DEFAULT = {getattr(signal, name) for name in _NOT_ENDING if hasattr(signal, name)}
+
+
+def _ends_process(sig: int) -> bool:
+    """Whether ``sig`` ends this process: SIGKILL, or a signal left to its default action that
+    terminates (a signal with a Python handler, such as the stop flag's SIGTERM, does not; nor do
+    those whose default is to be ignored or to stop the process)."""
+    if sig == getattr(signal, "SIGKILL", None):
+        return True
+    if not sig or sig in _IGNORED_BY_DEFAULT:
+        return False
+    try:
+        return signal.getsignal(sig) == signal.SIG_DFL
+    except (ValueError, OSError):
+        return False
 
 
 def _signal_name(sig: int) -> str:
