@@ -144,8 +144,17 @@ def export_deepracer(args: argparse.Namespace) -> int:
 
 
 def check_out_path(out: Path | str | None, option: str = "--out") -> None:
-    """:class:`UserError` when a local ``out`` cannot be written: a folder above it is a regular file
-    (checked before anything is pulled, converted or written)."""
+    """:class:`UserError` when ``out`` cannot be written: a local folder above it is a regular file, or
+    an ``s3://`` URL or ``AWS_ENDPOINT_URL`` that is malformed (checked before anything is pulled,
+    converted or written)."""
+    if isinstance(out, str):
+        from laplab.store.s3 import StoreError, endpoint_url, parse_store_url
+        try:
+            parse_store_url(out)
+            endpoint_url()
+        except StoreError as exc:
+            raise UserError(str(exc), field=exc.field or option) from None
+        return
     if not isinstance(out, Path):
         return
     for parent in out.absolute().parents:

@@ -52,6 +52,7 @@ def test_export_out_below_a_regular_file(laplab_home, tmp_path, capsys):
 def test_store_with_an_endpoint_that_is_not_a_url(laplab_home, monkeypatch, capsys):
     monkeypatch.setenv("AWS_ENDPOINT_URL", "not a url")
     _refused(capsys, ["evaluate", "base", "--store", "s3://bucket/models"], "AWS_ENDPOINT_URL", "'not a url'")
+    _refused(capsys, ["export", "base", "--format", "console", "--out", "s3://bucket/models"], "AWS_ENDPOINT_URL")
 
 
 def _edit_json(path, change):
