@@ -60,3 +60,13 @@ def test_reward_validate_cli_reports_keyboard_interrupt_with_its_line(tmp_path, 
     assert main(["reward", "validate", str(path)]) == 1
     out = capsys.readouterr().out
     assert f"{path}, line 2" in out and "interrupted" not in out
+
+
+def test_train_names_a_keyboard_interrupt_raised_by_the_reward(tmp_path, monkeypatch, capsys):
+    from laplab.store.layout import model_folder
+    monkeypatch.setenv("LAPLAB_HOME", str(tmp_path))
+    path = _write(tmp_path, "def reward_function(params):\n    raise KeyboardInterrupt\n")
+    assert main(["train", "--name", "kbi", "--reward", str(path), "--max-time", "5s"]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}, line 2" in err and "interrupted" not in err
+    assert not model_folder("kbi").exists()
