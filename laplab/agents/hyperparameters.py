@@ -13,6 +13,9 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any, Mapping
 
+from laplab.env.metadata import MAX_STACK_SIZE
+from laplab.errors import UserError
+
 # The networks' arithmetic in training (laplab's option, not a DeepRacer hyperparameter): see
 # ``laplab.agents.networks.set_compute_precision``.
 PRECISIONS = ("auto", "float32", "bfloat16")
@@ -37,7 +40,7 @@ class Hyperparameters:
     - ``discount_factor``: gamma, 0..1.
     - ``loss_type``: value loss, ``"huber"`` or ``"mean squared error"``.
     - ``num_episodes_between_training``: episodes collected per iteration, 1..1000.
-    - ``stack_size``: camera frames stacked into one observation, >= 1.
+    - ``stack_size``: camera frames stacked into one observation, 1 to :data:`MAX_STACK_SIZE` (8).
     - ``term_cond_max_episodes``, ``term_cond_avg_score``: stop after this many episodes, or
       once the average episode reward reaches the score.
     - ``sac_alpha``: SAC's fixed entropy temperature, 0..1.
@@ -71,8 +74,10 @@ class Hyperparameters:
         return 1.0 + fraction * (self.e_greedy_value - 1.0)
 
 
-class HyperparameterError(ValueError):
+class HyperparameterError(UserError, ValueError):
     """A hyperparameters file or dict that DeepRacer would not accept."""
+
+    default_field = "hyperparameters"
 
 
 # key -> (kind, low, high, description of the valid values)
@@ -85,7 +90,7 @@ _RANGES: dict[str, tuple[str, float, float, str]] = {
     "beta_entropy": ("float", 1e-4, 1e-2, "a number from 0.0001 to 0.01"),
     "discount_factor": ("float", 0.0, 1.0, "a number from 0 to 1"),
     "num_episodes_between_training": ("int", 1, 1000, "an integer from 1 to 1000"),
-    "stack_size": ("int", 1, math.inf, "an integer >= 1"),
+    "stack_size": ("int", 1, MAX_STACK_SIZE, f"an integer from 1 to {MAX_STACK_SIZE}"),
     "term_cond_max_episodes": ("int", 1, math.inf, "an integer >= 1"),
     "term_cond_avg_score": ("float", -math.inf, math.inf, "a finite number"),
     "sac_alpha": ("float", 0.0, 1.0, "a number from 0 to 1"),

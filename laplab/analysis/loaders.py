@@ -151,6 +151,8 @@ def _read_json_file(path: Path) -> Any:
         return json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
         raise ReportDataError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})") from None
+    except UnicodeDecodeError as exc:
+        raise ReportDataError(f"{path}: not a UTF-8 JSON text file ({exc.reason} at byte {exc.start})") from None
 
 
 def _column(rows: list[dict], key: str, path: Path, default: Any = None) -> list:
@@ -289,8 +291,9 @@ def read_trace_file(path: str | Path, iteration: int = 0) -> Trace:
     """One simtrace CSV as a Trace, every row tagged with ``iteration``."""
     try:
         columns = read_simtrace(path)
-    except ValueError as exc:
-        raise ReportDataError(str(exc)) from None
+    except ValueError as exc:  # the file is named once, whatever the reader's message says
+        message = " ".join(str(exc).split())
+        raise ReportDataError(message if str(path) in message else f"{path}: {message}") from None
     return _trace_from_columns(columns, iteration)
 
 

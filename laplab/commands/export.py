@@ -143,8 +143,32 @@ def export_deepracer(args: argparse.Namespace) -> int:
     return 0
 
 
+def check_out_path(out: Path | str | None, option: str = "--out") -> None:
+    """:class:`UserError` when ``out`` cannot be written: a local folder above it is a regular file, or
+    an ``s3://`` URL or ``AWS_ENDPOINT_URL`` that is malformed (checked before anything is pulled,
+    converted or written)."""
+    if isinstance(out, str):
+        from laplab.store.s3 import StoreError, endpoint_url, parse_store_url
+        try:
+            parse_store_url(out)
+            endpoint_url()
+        except StoreError as exc:
+            raise UserError(str(exc), field=exc.field or option) from None
+        return
+    if not isinstance(out, Path):
+        return
+    for parent in out.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UserError(f"{option} {out}: {parent} is a file, not a folder, so nothing can be written "
+                                f"below it; give a path in an existing folder (or one laplab may create).",
+                                field=option)
+            return
+
+
 def export_command(args: argparse.Namespace) -> int:
     from laplab.commands.store_option import store_session, without_traces
+    check_out_path(args.out)
     with store_session(args, "export") as store:
         if store:
             store.pull(args.model, (args.checkpoint,), without_traces)

@@ -6,6 +6,8 @@ import argparse
 
 from rich.console import Console
 
+MAX_TIMEOUT_S = 3600.0  # seconds one call may take at most (a longer wait is a hang, not a check)
+
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser("reward", help="work with reward functions")
@@ -19,16 +21,23 @@ def register(subparsers) -> None:
 
 
 def run_validate(args: argparse.Namespace) -> int:
+    import math
+
     from laplab.env.vector import resolve_metadata
+    from laplab.errors import UserError
     from laplab.reward.loader import load_reward_function
     from laplab.reward.validate import validate_reward_function
     from laplab.track.registry import DEFAULT_TRACK, load_track
 
+    if not (math.isfinite(args.timeout) and 0 < args.timeout <= MAX_TIMEOUT_S):
+        raise UserError(f"--timeout must be a number of seconds above 0 and at most {MAX_TIMEOUT_S:g}, "
+                        f"got {args.timeout:g}", field="--timeout")
     console = Console(highlight=False, soft_wrap=True)
     track = load_track(args.track or DEFAULT_TRACK)
     metadata = resolve_metadata(args.model_metadata)
     reward_fn = load_reward_function(args.file, max_speed=metadata.action_space.max_speed)
-    report = validate_reward_function(reward_fn, track, metadata.action_space.sweep_actions(), timeout_s=args.timeout)
+    report = validate_reward_function(reward_fn, track, metadata.action_space.sweep_actions(), timeout_s=args.timeout,
+                                      isolate=True)
     kind = "2018 signature" if reward_fn.is_legacy else "params dict"
     if report.passed:
         console.print(f"[green]PASS[/green] {args.file} ({kind}) on {track.name}: {report.calls} states, "

@@ -152,7 +152,7 @@ def store_session(args: argparse.Namespace, command: str) -> Iterator[StoreSessi
                 except StoreError as exc:
                     print(f"laplab {command}: {exc}", file=sys.stderr)
     except (StoreError, ModelBusyError) as exc:
-        raise UserError(str(exc)) from None
+        raise UserError(str(exc), field=getattr(exc, "field", None) or "--store") from None
     finally:
         if previous is None:
             os.environ.pop(MODELS_ROOT_ENV, None)

@@ -115,19 +115,33 @@ def _overrides(args: argparse.Namespace) -> dict:
         try:
             out["vehicle"] = resolve_physics(args.physics)
         except PhysicsError as error:
-            raise UserError(str(error)) from None
-    if args.hyperparameters and args.hyperparameters.lstrip().startswith("{"):  # the JSON itself
+            raise UserError(str(error), field="--physics") from None
+    if args.hyperparameters and args.hyperparameters.lstrip().startswith(("{", "[", '"')):  # JSON, not a file
         out["hyperparameters"] = parse_hyperparameters(args.hyperparameters, "--hyperparameters").to_dict()
     elif args.hyperparameters:
         out["hyperparameters"] = load_hyperparameters(args.hyperparameters).to_dict()
     return out
 
 
-class _StopFlag:
-    """SIGINT / SIGTERM set a flag the trainer polls; a second Ctrl-C interrupts at once."""
+class _Flag:
+    """A flag a signal handler may set at any moment, even while it is being set or read (a
+    threading.Event takes a lock: a second signal arriving inside ``set()`` deadlocked on it)."""
 
     def __init__(self):
-        self.event = threading.Event()
+        self._set = False
+
+    def set(self) -> None:
+        self._set = True
+
+    def is_set(self) -> bool:
+        return self._set
+
+
+class _StopFlag:
+    """SIGINT / SIGTERM set a flag the trainer polls; a second one (either) interrupts at once."""
+
+    def __init__(self):
+        self.event = _Flag()
         self._previous = {}
         self._depth = 0  # entered again by run_trainer: the handlers are installed once
 
@@ -139,7 +153,7 @@ class _StopFlag:
         return self
 
     def _handle(self, signum, frame):
-        if self.event.is_set() and signum == signal.SIGINT:
+        if self.event.is_set():  # asked twice: stop now (the model keeps its last checkpoint)
             raise KeyboardInterrupt
         self.event.set()
 
@@ -229,16 +243,16 @@ def run_train(args: argparse.Namespace) -> int:
     if not args.resume and not args.name:
         raise UserError("name the new model with --name NAME (or continue one with --resume NAME)")
     if args.resume:
+        kept = (("--reward", args.reward, "reward function"), ("--track", args.track, "tracks"),
+                ("--hyperparameters", args.hyperparameters, "hyperparameters"),
+                ("--model-metadata", args.model_metadata, "model_metadata.json"),
+                ("--physics", args.physics, "car (its physics)"))
+        for option, value, what in kept:
+            if value:  # refused, not checked and then ignored
+                raise UserError(f"a resumed job keeps its {what} (laplab.json records it); to train with another, "
+                                f"`laplab clone {args.resume} NEW {option} ...` (a clone keeps the action space "
+                                "and the sensors).", field=option)
         overrides = _overrides(args)
-        if args.reward:
-            raise UserError("a resumed job keeps its reward function; to train with another one, "
-                            f"`laplab clone {args.resume} NEW --reward FILE`")
-        if overrides["track"] or overrides["tracks"]:
-            raise UserError("a resumed job keeps its tracks; to train on others, "
-                            f"`laplab clone {args.resume} NEW --track ...`")
-        if overrides.get("vehicle"):
-            raise UserError("a resumed job keeps the car it trained with; to train with another one, "
-                            f"`laplab clone {args.resume} NEW --physics {args.physics}`")
     else:
         values = {k: v for k, v in _overrides(args).items() if v is not None}
         values["domain_randomization"] = bool(args.domain_randomization)

@@ -93,16 +93,12 @@ def _input_errors() -> tuple[type[BaseException], ...]:
 
 
 def _field_of(exc: BaseException) -> str | None:
-    from laplab.agents.hyperparameters import HyperparameterError
-    from laplab.env.action_space import ActionSpaceError
-    from laplab.env.metadata import MetadataError
-    from laplab.store.layout import ModelNameError
-    from laplab.track.geometry import TrackError
-    for kind, name in ((HyperparameterError, "hyperparameters"), (ActionSpaceError, "model_metadata"),
-                       (MetadataError, "model_metadata"), (ModelNameError, "name"), (TrackError, "track")):
-        if isinstance(exc, kind):
-            return name
-    return None
+    """The request field an input error is about (laplab.errors.UserError carries it)."""
+    field = getattr(exc, "field", None)
+    return field if field in _REQUEST_FIELDS else None
+
+
+_REQUEST_FIELDS = ("hyperparameters", "model_metadata", "name", "track")
 
 
 def own_model(request: Request, name: str, user: User) -> None:

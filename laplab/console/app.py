@@ -9,8 +9,10 @@ import logging
 import os
 
 from fastapi import Depends, FastAPI, Request
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from laplab.console.auth import current_user, load_secret
 from laplab.console.service import ConsoleService, default_workers, threads_per_job
@@ -90,6 +92,17 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
         return JSONResponse(status_code=422, content={"detail": {"message": message, "field": where or None,
                                                                  "errors": [{"loc": e.get("loc"), "msg": e.get("msg")}
                                                                             for e in errors]}})
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request: Request, exc: StarletteHTTPException):
+        if exc.status_code == 400 and exc.__cause__ is not None and exc.detail == "There was an error parsing the body":
+            # FastAPI's words for a body its JSON parser gave up on (not a syntax error: those are 422s)
+            why = ("it nests arrays or objects deeper than Python's JSON parser allows (about 1,000 levels)"
+                   if isinstance(exc.__cause__, RecursionError) else f"{type(exc.__cause__).__name__}")
+            return JSONResponse(status_code=400, content={"detail": {
+                "message": f"body: the request body cannot be read as JSON: {why}; send one JSON object of the "
+                           "request's fields (docs/console.md lists them)", "field": "body"}})
+        return await http_exception_handler(request, exc)
 
     @app.get("/openapi.json", include_in_schema=False)
     def openapi(user: User = Depends(current_user)) -> dict:

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from laplab.errors import UserError
 from laplab.vehicle.params import DEEPRACER, VehicleParams
 
 # laplab's default: the DeepRacer console's largest discrete grid (steering granularity 7 up to 30
@@ -16,8 +17,10 @@ from laplab.vehicle.params import DEEPRACER, VehicleParams
 DEFAULT_DISCRETE_ACTIONS = tuple((float(steer), speed) for steer in range(-30, 31, 10) for speed in (1.33, 2.67, 4.0))
 
 
-class ActionSpaceError(ValueError):
+class ActionSpaceError(UserError, ValueError):
     """An action space in model_metadata.json that DeepRacer would not accept."""
+
+    default_field = "model_metadata"
 
 
 @dataclass(frozen=True)
@@ -105,6 +108,10 @@ def default_action_space() -> ActionSpace:
     return ActionSpace("discrete", DEFAULT_DISCRETE_ACTIONS)
 
 
+#: The most actions a discrete action space may list (DeepRacer's console builds at most 7 x 3 = 21).
+MAX_DISCRETE_ACTIONS = 64
+
+
 def parse_action_space(value: object, kind: str | None, source: str,
                        vehicle: VehicleParams = DEEPRACER) -> ActionSpace:
     """Validate the ``action_space`` / ``action_space_type`` pair of a model_metadata.json."""
@@ -117,6 +124,10 @@ def parse_action_space(value: object, kind: str | None, source: str,
         if not isinstance(value, list) or not value:
             raise ActionSpaceError(f"{source}: a discrete action_space must be a non-empty list of "
                                    f'{{"steering_angle": deg, "speed": m/s}} objects, got {value!r:.80}.')
+        if len(value) > MAX_DISCRETE_ACTIONS:
+            raise ActionSpaceError(f"{source}: action_space lists {len(value):,} actions; a discrete action space "
+                                   f"has 1 to {MAX_DISCRETE_ACTIONS} (DeepRacer's console offers up to 21). "
+                                   "For a finer choice use a continuous action space.")
         actions = []
         for i, item in enumerate(value):
             where = f"{source}: action_space[{i}]"

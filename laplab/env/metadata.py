@@ -6,7 +6,10 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from laplab.env.action_space import ActionSpace, ActionSpaceError, default_action_space, parse_action_space
+from laplab.env.action_space import (
+    MAX_DISCRETE_ACTIONS, ActionSpace, ActionSpaceError, default_action_space, parse_action_space,
+)
+from laplab.errors import UserError
 from laplab.vehicle.physics import DEFAULT_VERSION, PhysicsError, car_for_version
 
 CAMERA_SENSORS = ("FRONT_FACING_CAMERA", "STEREO_CAMERAS", "LEFT_CAMERA")
@@ -15,10 +18,16 @@ STATE_SENSOR = "STATE"  # laplab's own vector sensor (see laplab.sensors.state_v
 ALL_SENSORS = CAMERA_SENSORS + LIDAR_SENSORS + (STATE_SENSOR,)
 NETWORKS = ("DEEP_CONVOLUTIONAL_NETWORK_SHALLOW", "DEEP_CONVOLUTIONAL_NETWORK", "DEEP_CONVOLUTIONAL_NETWORK_DEEP")
 ALGORITHMS = ("clipped_ppo", "sac")
+#: The most camera frames one observation may stack (DeepRacer trains with 1; the memory of every
+#: observation and of a replay buffer grows with it).
+MAX_STACK_SIZE = 8
+MAX_METADATA_BYTES = 256 << 10  # a model_metadata.json of 64 actions and every sensor is ~5 KiB
 
 
-class MetadataError(ValueError):
+class MetadataError(UserError, ValueError):
     """A model_metadata.json that DeepRacer (or laplab) would not accept."""
+
+    default_field = "model_metadata"
 
 
 @dataclass(frozen=True)
@@ -127,6 +136,11 @@ def load_model_metadata(path: str | Path) -> ModelMetadata:
     path = Path(path)
     if not path.is_file():
         raise MetadataError(f"{path}: no such file.")
+    size = path.stat().st_size
+    if size > MAX_METADATA_BYTES:
+        raise MetadataError(f"{path}: the file is {size / 2**20:.1f} MiB; a model_metadata.json is at most "
+                            f"{MAX_METADATA_BYTES // 2**10} KiB ({MAX_DISCRETE_ACTIONS} actions and the sensors "
+                            "take a few KiB). Is it the right file?")
     try:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as exc:

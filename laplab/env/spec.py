@@ -17,8 +17,8 @@ import gymnasium as gym
 import numpy as np
 
 from laplab.env.action_space import ActionSpace, default_action_space
-from laplab.env.metadata import (CAMERA_SENSORS, LIDAR_SENSORS, NETWORKS, STATE_SENSOR, MetadataError,
-                                 ModelMetadata, camera_sensor, lidar_sensor, validate_sensors)
+from laplab.env.metadata import (CAMERA_SENSORS, LIDAR_SENSORS, MAX_STACK_SIZE, NETWORKS, STATE_SENSOR,
+                                 MetadataError, ModelMetadata, camera_sensor, lidar_sensor, validate_sensors)
 
 
 @dataclass(frozen=True)
@@ -42,8 +42,8 @@ class ModelSpec:
 
     def __post_init__(self) -> None:
         if isinstance(self.stack_size, bool) or not isinstance(self.stack_size, (int, np.integer)) \
-                or self.stack_size < 1:
-            raise MetadataError(f"stack_size must be an integer >= 1, got {self.stack_size!r}")
+                or not 1 <= self.stack_size <= MAX_STACK_SIZE:
+            raise MetadataError(f"stack_size must be an integer from 1 to {MAX_STACK_SIZE}, got {self.stack_size!r}")
         object.__setattr__(self, "stack_size", int(self.stack_size))
         object.__setattr__(self, "sensors", validate_sensors(list(self.sensors), "ModelSpec.sensors"))
 

@@ -70,6 +70,9 @@ def check_model_exportable(name: str, allowed: tuple[str, ...] = CAR_SENSORS,
     folder = model_folder(name)
     if not folder.model_metadata.exists():
         return  # the export itself names what is missing
+    if folder.laplab_config.exists():
+        from laplab.train.model_files import check_model_files
+        check_model_files(folder, what="export", hyperparameter_keys=("stack_size",))
     hyper = folder.read_laplab_config().get("hyperparameters", {}) if folder.laplab_config.exists() else {}
     check_exportable(folder.read_model_metadata(), int(hyper.get("stack_size", 1)), allowed, where)
 

@@ -18,7 +18,9 @@ def describe_death(reports: dict, returncode: int | None, signum: int | None, cr
     subject = f"{reports.get('what', what)} of model {model!r}" if model else reports.get("what", what)
     if signum is not None:
         name = signal.Signals(signum).name
-        if signum == signal.SIGKILL:
+        if signum == signal.SIGKILL and reports.get("reward_call"):
+            how = f"was killed by {name}, which its reward function sent"
+        elif signum == signal.SIGKILL:
             how = (f"was killed by {name}: the system's out-of-memory killer (it had used "
                    f"{_size(max_rss)} at its peak) or another process (kill -9)")
         elif signum == getattr(signal, "SIGXCPU", None):
@@ -39,7 +41,9 @@ def describe_death(reports: dict, returncode: int | None, signum: int | None, cr
     elif reports.get("folder"):
         where = " It had not finished an iteration yet."
     reward = _reward_frame(crash, reports.get("reward_path"))
-    if reward:
+    if reports.get("reward_call"):  # laplab.reward.guards saw the reward function end the job itself
+        where += f" The reward function called {reports['reward_call']}."
+    elif reward:
         where += f" It was running the reward function at {reward}."
     kept = ""
     if reports.get("folder"):

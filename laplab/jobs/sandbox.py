@@ -2,9 +2,11 @@
 
 - :func:`die_with_parent`: the job is killed when its supervisor dies (Linux), so killing
   ``laplab train`` with SIGKILL never leaves an orphan training the model.
-- :func:`guard_exit_calls`: ``os._exit`` called from a reward function raises :class:`ExitCalled`
-  (a SystemExit) instead, which the reward loader reports as the usual RewardFunctionError with
-  the line and params; called anywhere else it exits as usual.
+- :func:`guard_exit_calls`: :mod:`laplab.reward.guards`: ``os._exit`` called from a reward function
+  raises :class:`ExitCalled` (a SystemExit) instead, which the reward loader reports as the usual
+  RewardFunctionError with the line and params (called anywhere else it exits as usual); closing
+  stdout / stderr raises too; a signal the reward function sends its own process is reported (file
+  and line) before it is delivered.
 - :func:`cap_reward_output`: what a reward function prints goes to the model folder's
   ``logs/reward-output.log`` in full, and only its first lines to the terminal;
   :func:`reward_output_summary` says how much was held back.
@@ -16,36 +18,18 @@ Reward code is recognised as in :mod:`laplab.reward.watchdog` (user modules are 
 from __future__ import annotations
 
 import os
-import signal
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
+from laplab.reward.guards import ExitCalled, StreamCloseCalled, die_with_parent, install_guards, on_self_signal
 from laplab.reward.watchdog import is_user_frame
+
+__all__ = ["ExitCalled", "StreamCloseCalled", "cap_reward_output", "die_with_parent", "guard_exit_calls",
+           "reward_output_summary", "set_output_folder"]
 
 REWARD_LOG = Path("logs") / "reward-output.log"
 _PENDING_LIMIT = 4 << 20  # bytes of reward output kept in memory until the job knows its folder
-
-
-def die_with_parent() -> None:
-    """Ask Linux to SIGKILL this process when the process that started it ends (no-op elsewhere)."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        import ctypes
-        libc = ctypes.CDLL(None, use_errno=True)
-        parent = os.getppid()
-        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
-        if os.getppid() != parent:  # the supervisor died before prctl took effect
-            os._exit(1)
-    except (OSError, AttributeError):
-        pass
-
-
-class ExitCalled(SystemExit):
-    """``os._exit(code)`` called by a reward function: the job cannot be ended from there."""
-
-    def __str__(self) -> str:
-        return f"os._exit({self.code}) was called; a reward function cannot end the job"
 
 
 def _user_code_on_stack() -> bool:
@@ -57,18 +41,11 @@ def _user_code_on_stack() -> bool:
     return False
 
 
-def guard_exit_calls() -> None:
-    real_exit = os._exit
-    if getattr(real_exit, "laplab_guard", False):
-        return
-
-    def guarded_exit(code: int) -> None:
-        if _user_code_on_stack():
-            raise ExitCalled(code)
-        real_exit(code)
-
-    guarded_exit.laplab_guard = True
-    os._exit = guarded_exit
+def guard_exit_calls(report: Callable[[str], None] | None = None) -> None:
+    """:func:`laplab.reward.guards.install_guards`; ``report(text)`` is told where a reward function
+    signalled its own process (the supervisor's death message names that line)."""
+    install_guards()
+    on_self_signal(report)
 
 
 class _RewardOutput:
@@ -117,8 +94,8 @@ class _RewardOutput:
 class _CappedStream:
     """A text stream that passes laplab's own output through and caps the reward function's."""
 
-    def __init__(self, stream, output: _RewardOutput):
-        self._stream, self._output = stream, output
+    def __init__(self, stream, output: _RewardOutput, label: str = "stdout"):
+        self._stream, self._output, self._label = stream, output, label
 
     def write(self, text: str) -> int:
         if not text or not _user_code_on_stack():
@@ -138,6 +115,11 @@ class _CappedStream:
                                f"goes to {where} only]\n")
         return len(text)
 
+    def close(self) -> None:
+        if _user_code_on_stack():
+            raise StreamCloseCalled(f"sys.{self._label}.close() would close the job's {self._label}")
+        self._stream.close()
+
     def __getattr__(self, name):
         return getattr(self._stream, name)
 
@@ -152,7 +134,7 @@ def cap_reward_output(max_lines: int) -> None:
         return
     _output = _RewardOutput(max_lines)
     sys.stdout = _CappedStream(sys.stdout, _output)
-    sys.stderr = _CappedStream(sys.stderr, _output)
+    sys.stderr = _CappedStream(sys.stderr, _output, "stderr")
 
 
 def set_output_folder(folder: str | os.PathLike) -> None:

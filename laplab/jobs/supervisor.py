@@ -192,7 +192,7 @@ def enter_job(limits: JobLimits, status_fd: int | None, crash_log: str | None) -
         handle = open(crash_log, "w")  # noqa: SIM115 - kept open for faulthandler until the process ends
         _child["crash_log"] = handle
         faulthandler.enable(handle, all_threads=False)
-    sandbox.guard_exit_calls()
+    sandbox.guard_exit_calls(lambda where: report(reward_call=where))
     sandbox.cap_reward_output(limits.reward_output_lines)
 
 

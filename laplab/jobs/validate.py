@@ -33,7 +33,7 @@ def _validate(request: dict) -> dict:
         path.write_text(source, encoding="utf-8")
         try:
             reward_fn = load_reward_function(str(path), max_speed=metadata.action_space.max_speed)
-            report = validate_reward_function(reward_fn, track, metadata.action_space.sweep_actions())
+            report = validate_reward_function(reward_fn, track, metadata.action_space.sweep_actions(), isolate=True)
         except RewardFunctionError as exc:
             return {"ok": False, "errors": [_error(exc, path)], "calls": 0}
     if report.passed:

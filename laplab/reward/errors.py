@@ -16,6 +16,8 @@ from collections.abc import Mapping
 from types import TracebackType
 from typing import Any, Callable
 
+from laplab.errors import UserError
+
 #: The params shown in error messages: enough to rebuild the failing state by hand.
 PARAMS_SUMMARY_KEYS = (
     "x", "y", "heading", "progress", "steps", "speed", "steering_angle", "distance_from_center",
@@ -40,14 +42,17 @@ _SYNTAX_HINTS = (
 )
 
 
-class RewardFunctionError(Exception):
+class RewardFunctionError(UserError):
     """A user reward function failed to load, raised, returned a bad value or hung.
 
     Attributes: ``path`` (the reward file, or ``"<string>"``), ``lineno`` (1-based line in that
     file, or None), ``source_line`` (that line's text, stripped), ``problem`` (what went wrong),
     ``cause`` (``repr`` of the underlying exception, or None), ``hint`` (a likely fix, or None),
-    ``params_summary`` (the key params of the failing step, or None at load time).
+    ``params_summary`` (the key params of the failing step, or None at load time); ``field``:
+    ``"reward_function"`` (the console's name for the code, the CLI's is ``--reward``).
     """
+
+    default_field = "reward_function"
 
     def __init__(self, problem: str, *, path: str = "<string>", lineno: int | None = None,
                  source_line: str | None = None, cause: str | None = None,

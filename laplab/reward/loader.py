@@ -17,6 +17,7 @@ without a timer per call (a :class:`RewardTimeout` it raises becomes a RewardFun
 
 from __future__ import annotations
 
+import dis
 import inspect
 import itertools
 import math
@@ -44,6 +45,7 @@ LEGACY_PARAMETERS = (
 REWARD_LIMIT = 1e5
 
 _module_counter = itertools.count()
+_RAISE_OPCODE = dis.opmap["RAISE_VARARGS"]
 
 
 class RewardFunction:
@@ -84,6 +86,11 @@ class RewardFunction:
             raise self._raised_error(exc, params) from exc
         except RewardTimeout as timeout:  # laplab.reward.watchdog stopped a batch of calls that ran too long
             raise self._timeout_error(timeout, params) from None
+        except KeyboardInterrupt as exc:
+            if not self._raised_by_user(exc):  # Ctrl-C while the function ran: the user's interrupt
+                raise
+            raise self._raised_error(exc, params, hint="a reward function cannot stop the job; return a "
+                                                        "number on every path") from exc
         reward, why_invalid = _checked_reward(value)
         if why_invalid:
             raise self._return_error(value, params, why_invalid) from None
@@ -123,12 +130,15 @@ class RewardFunction:
         """The innermost traceback entry inside the user's file."""
         return last_user_frame(traceback, self._code_filename)
 
-    def _raised_error(self, exc: BaseException, params: Any) -> RewardFunctionError:
+    def _raised_error(self, exc: BaseException, params: Any, hint: str | None = None) -> RewardFunctionError:
         entry = self.user_frame(exc.__traceback__)
         names = [*entry.tb_frame.f_locals, *entry.tb_frame.f_globals] if entry is not None else []
         return self.error_at(f"the function raised {describe_exception(exc)}",
                              entry.tb_lineno if entry is not None else None, params,
-                             cause=repr(exc), hint=hint_for_exception(exc, names, params))
+                             cause=repr(exc), hint=hint or hint_for_exception(exc, names, params))
+
+    def _raised_by_user(self, exc: BaseException) -> bool:
+        return raised_by_statement(exc, self._code_filename)
 
     def _timeout_error(self, timeout: RewardTimeout, params: Any) -> RewardFunctionError:
         problem = (f"one step's calls of the function did not return within {timeout.seconds:g} s of "
@@ -208,8 +218,11 @@ def _compile_reward(source: str, path: str, name: str, max_speed: float, max_ste
     sys.modules[module_name] = module  # dataclasses and pickle look classes up here
     try:
         exec(code, module.__dict__)
-    except (Exception, SystemExit) as exc:
+    except (Exception, SystemExit, KeyboardInterrupt) as exc:
         sys.modules.pop(module_name, None)
+        if isinstance(exc, KeyboardInterrupt) and not raised_by_statement(exc, code_filename):
+            raise  # Ctrl-C while the file loaded; a `raise KeyboardInterrupt` in it is a load error
+
         entry = last_user_frame(exc.__traceback__, code_filename)
         lineno = entry.tb_lineno if entry is not None else None
         raise RewardFunctionError(f"running the file's top level raised {describe_exception(exc)}", path=path,
@@ -229,6 +242,18 @@ def _compile_reward(source: str, path: str, name: str, max_speed: float, max_ste
     return RewardFunction(function, path=path, source=source, name=name, code_filename=code_filename,
                           is_legacy=is_legacy, legacy_has_self=legacy_has_self, max_speed=max_speed,
                           max_steering_deg=max_steering_deg)
+
+
+def raised_by_statement(exc: BaseException, code_filename: str) -> bool:
+    """Whether ``exc`` (e.g. a KeyboardInterrupt) came from a ``raise`` statement in ``code_filename``,
+    not from SIGINT: a signal handler raises at a call or a loop's jump, never at a ``raise``."""
+    last = exc.__traceback__
+    while last is not None and last.tb_next is not None:
+        last = last.tb_next
+    if last is None or last.tb_frame.f_code.co_filename != code_filename:
+        return False
+    code = last.tb_frame.f_code.co_code
+    return 0 <= last.tb_lasti < len(code) and code[last.tb_lasti] == _RAISE_OPCODE
 
 
 def legacy_arguments(params: Mapping[str, Any], max_speed: float, max_steering_deg: float) -> tuple:
@@ -322,6 +347,8 @@ def _checked_reward(value: Any) -> tuple[float, str | None]:
         reward = float(value)
     except (TypeError, ValueError, OverflowError):
         return math.nan, "which is not a number"
+    except (Exception, SystemExit) as exc:  # the returned object's own __float__ failed
+        return math.nan, f"and float() of it raised {describe_exception(exc)}"
     if not math.isfinite(reward):
         return reward, "which is not finite"
     if not -REWARD_LIMIT <= reward <= REWARD_LIMIT:

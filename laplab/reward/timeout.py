@@ -3,7 +3,9 @@
 In the main thread on Unix a repeating ``SIGALRM`` timer unwinds the user's code (re-firing, and
 tracing the user's lines, if a bare ``except:`` swallows it); elsewhere the call runs in a child
 process that is killed when it outlives the timeout. Either way a hang becomes a
-:class:`~laplab.reward.errors.RewardFunctionError` naming the line the function was busy on.
+:class:`~laplab.reward.errors.RewardFunctionError` naming the line the function was busy on. A
+function that ignores or blocks SIGALRM defeats the timer: the commands' check therefore makes its
+calls in :mod:`laplab.reward.check_process`'s child, which its caller kills.
 """
 
 from __future__ import annotations

@@ -81,12 +81,21 @@ def sweep_params(track: Track, actions: np.ndarray | None = None) -> list[dict]:
 
 
 def validate_reward_function(reward_fn: RewardFunction, track: Track, actions: np.ndarray | None = None,
-                             timeout_s: float = 2.0) -> ValidationReport:
+                             timeout_s: float = 2.0, isolate: bool = False) -> ValidationReport:
     """Call ``reward_fn`` on every state of the sweep (``actions`` as in :func:`sweep_params`); stop at
-    the first failure."""
+    the first failure. ``isolate``: make the calls in a child process that is killed if it stops
+    answering (:mod:`laplab.reward.check_process`: what the commands do before a job), so that no
+    reward function can hang, kill or cripple the caller."""
+    from laplab.reward.check_process import call_all, can_isolate
+    params_list = sweep_params(track, actions)
+    if isolate and can_isolate() and isinstance(reward_fn, RewardFunction):
+        values, error = call_all(reward_fn, params_list, timeout_s)
+        arr = np.array(values) if values else np.zeros(1)
+        return ValidationReport(len(values) + (error is not None), float(arr.min()), float(arr.mean()),
+                                float(arr.max()), error)
     values = []
     error = None
-    for params in sweep_params(track, actions):
+    for params in params_list:
         try:
             values.append(call_with_timeout(reward_fn, params, timeout_s))
         except RewardFunctionError as exc:

@@ -15,6 +15,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from laplab.errors import UserError
+
 
 def _fsync_directory(folder: Path) -> None:
     try:
@@ -89,7 +91,7 @@ def atomic_write_json(path: str | os.PathLike, obj: Any, indent: int | None = 2)
     return atomic_write_text(path, text + "\n")
 
 
-class CorruptFileError(ValueError):
+class CorruptFileError(UserError, ValueError):
     """A file laplab wrote that is damaged (truncated, torn, edited); the message names it."""
 
 

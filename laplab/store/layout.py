@@ -28,6 +28,7 @@ from datetime import datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any
 
+from laplab.errors import UserError
 from laplab.store.atomic import atomic_write_json, atomic_write_text, read_json
 
 MODEL_NAME_PATTERN = re.compile(r"[A-Za-z0-9-]{1,64}")
@@ -36,8 +37,10 @@ _EVALUATION_STAMP_PATTERN = re.compile(r"[0-9]{14}")
 _ITERATION_FILE_PATTERN = re.compile(r"([0-9]+)-iteration\.csv")
 
 
-class ModelNameError(ValueError):
+class ModelNameError(UserError, ValueError):
     """A model name DeepRacer would refuse."""
+
+    default_field = "name"
 
 
 def validate_model_name(name: str) -> str:

@@ -29,7 +29,12 @@ _PREFIX_PART = re.compile(r"[A-Za-z0-9!_.*'()=+-]+")
 
 
 class StoreError(Exception):
-    """The object store cannot be used as asked; the message is one paragraph naming the URL or key."""
+    """The object store cannot be used as asked; the message is one paragraph naming the URL or key.
+    ``field``: the setting it is about (``"AWS_ENDPOINT_URL"``, ``"--store"``), when it is one."""
+
+    def __init__(self, message: str = "", field: str | None = None):
+        super().__init__(message)
+        self.field = field
 
 
 class PreconditionFailed(StoreError):
@@ -78,8 +83,26 @@ def parse_store_url(url: str) -> S3Location:
 
 
 def endpoint_url() -> str | None:
-    """``$AWS_ENDPOINT_URL`` (a MinIO or moto server, e.g. http://127.0.0.1:9000), None for AWS."""
-    return os.environ.get(ENDPOINT_ENV) or None
+    """``$AWS_ENDPOINT_URL`` (a MinIO or moto server, e.g. http://127.0.0.1:9000), None for AWS;
+    :class:`StoreError` when it is set to something that is not an http(s) URL."""
+    return check_endpoint(os.environ.get(ENDPOINT_ENV) or None, f"${ENDPOINT_ENV}")
+
+
+def check_endpoint(endpoint: str | None, what: str = "the endpoint") -> str | None:
+    """``endpoint`` when None or an ``http(s)://host[:port][/path]`` URL, else :class:`StoreError`."""
+    if endpoint is None:
+        return None
+    from urllib.parse import urlsplit
+    try:
+        parts = urlsplit(endpoint)
+        port_ok = parts.port is None or parts.port > 0
+    except ValueError:
+        parts, port_ok = None, False
+    if parts is None or parts.scheme not in ("http", "https") or not parts.hostname or not port_ok:
+        raise StoreError(f"{what} is {endpoint!r}, which is not the URL of an S3-compatible server: give "
+                         f"http://HOST:PORT or https://HOST (for example http://127.0.0.1:9000 for MinIO), or "
+                         f"unset {ENDPOINT_ENV} to use AWS S3 itself.")
+    return endpoint
 
 
 class ObjectStore:
@@ -93,7 +116,7 @@ class ObjectStore:
             raise StoreError(f"--store {location.url()} needs boto3, which is not installed: "
                              "`pip install 'laplab[store]'` (or `pip install boto3`).") from None
         self.location = location
-        self.endpoint = endpoint if endpoint is not None else endpoint_url()
+        self.endpoint = check_endpoint(endpoint) if endpoint is not None else endpoint_url()
         where = self.endpoint or "AWS S3"
         self._where = f"{location.url()} (endpoint {where})"
         # Few retries and short timeouts: a wrong endpoint fails in seconds, not minutes.

@@ -284,7 +284,14 @@ def read_simtrace(path: str | os.PathLike) -> dict[str, np.ndarray]:
     float64 (n, 2) `[steer speed]` pairs. A torn last line (no trailing newline) is dropped.
     """
     source = Path(path)
-    text = source.read_text(encoding="utf-8")
+    data = source.read_bytes()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise ValueError(f"{str(source)!r} is not a simtrace CSV: line {line} (byte {exc.start}) is not UTF-8 "
+                         f"text ({exc.reason}); simtrace files are text with the header "
+                         f"{SIMTRACE_HEADER[:40]!r}...") from None
     header, _, body = text.partition("\n")
     if header.strip() != SIMTRACE_HEADER:
         raise ValueError(f"{str(source)!r} does not start with the simtrace header {SIMTRACE_HEADER!r}; "

@@ -12,13 +12,17 @@ from pathlib import Path
 
 import numpy as np
 
+from laplab.errors import UserError
+
 CLOSE_TOLERANCE = 1e-6  # m: first and last rows closer than this close the loop
 MAX_WAYPOINTS = 2000  # DeepRacer's routes have 50-400 rows; 2,000 is one every 5 cm on a 100 m loop
 MIN_ROAD_WIDTH = 0.05  # m between the borders at a waypoint (DeepRacer's tracks: 0.6-1.1 m)
 
 
-class TrackError(ValueError):
+class TrackError(UserError, ValueError):
     """A route file or array that is not a valid DeepRacer track."""
+
+    default_field = "track"
 
 
 @dataclass(frozen=True, eq=False)

@@ -20,7 +20,7 @@ from typing import BinaryIO
 from laplab.store import archive as store_archive
 from laplab.store.archive import ArchiveError, ImportedModel
 from laplab.store.atomic import CorruptFileError, atomic_write_json
-from laplab.store.layout import ModelFolder
+from laplab.store.layout import ModelFolder, model_folder
 from laplab.train.errors import JobError
 
 IMPORT_RECORD = "laplab-import.json"
@@ -31,6 +31,11 @@ def export_model_archive(name: str, checkpoint: str = "best", out: str | os.Path
     """:func:`laplab.store.archive.export_model_archive` after checking that the checkpoint loads
     (``full_state``: with the last checkpoint's resume state)."""
     from laplab.train.checkpoint_read import load_state
+    from laplab.train.model_files import check_model_files
+
+    folder = model_folder(name)
+    if folder.laplab_config.exists():
+        check_model_files(folder, what="export")  # an archive that import would refuse is never written
 
     def verify(handle: BinaryIO, where: str) -> None:
         try:

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, fields, replace
 from laplab.agents.hyperparameters import PRECISIONS, Hyperparameters, from_dict as hyperparameters_from_dict
 from laplab.env.metadata import ModelMetadata, metadata_from_dict
 from laplab.env.spec import ModelSpec, model_spec
+from laplab.errors import UserError
 from laplab.sim.state import EpisodeParams
 from laplab.track.registry import DEFAULT_TRACK
 from laplab.vehicle.params import PRESETS
@@ -17,7 +18,7 @@ from laplab.vehicle.physics import car_for_version, car_of_config, version_for_c
 CONFIG_VERSION = 2  # 2: ``vehicle`` names one of DeepRacer's cars; in 1, "deepracer" was laplab's classic car
 
 
-class ConfigError(ValueError):
+class ConfigError(UserError, ValueError):
     """A training option out of range."""
 
 

@@ -16,6 +16,7 @@ from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import ModelFolder, model_folder, validate_model_name
 from laplab.store.lock import LOCK_FILE_NAME, ModelBusyError, ModelLock
 from laplab.train.config import TrainConfig
+from laplab.train.model_files import check_model_files
 from laplab.train.errors import JobError
 from laplab.track.geometry import Track
 from laplab.track.registry import load_track
@@ -38,7 +39,7 @@ def load_and_validate_reward(config: TrainConfig, track: Track, path: Path | Non
     """Load the job's reward function and run the validation sweep on ``track``; raises RewardFunctionError."""
     action_space = config.model_metadata.action_space
     reward_fn = load_reward_function(path or reward_file(config), max_speed=action_space.max_speed)
-    report = validate_reward_function(reward_fn, track, action_space.sweep_actions())
+    report = validate_reward_function(reward_fn, track, action_space.sweep_actions(), isolate=True)
     if not report.passed:
         raise report.error
     return reward_fn
@@ -152,7 +153,7 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
     lock = take_lock(folder)
     try:
         check_reward_trusted(folder, trust_reward, f"laplab train --resume {name}")
-        config = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
+        config = check_model_files(folder, what="resume")
         if max_time_s is not None:
             config = replace(config, max_time_s=max_time_s)
         if max_episodes is not None:
@@ -162,8 +163,13 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
             folder.write_laplab_config(config.to_dict())
         track = job_track(config)
         reward_fn = load_and_validate_reward(config, track, folder.reward_function)
-        if CheckpointStore(folder).names():
+        checkpoints = CheckpointStore(folder)
+        if checkpoints.names():
             _, state = read_resume_state(folder)
+        elif checkpoints.last() is not None:  # the index names one whose file is gone: never start over silently
+            raise JobError(f"cannot resume model {name!r}: {folder.deepracer_checkpoints} names the last checkpoint "
+                           f"{checkpoints.last().name!r}, but {folder.model_dir} holds no checkpoint file (were they "
+                           f"deleted?). Restore the checkpoint files, or `laplab train --name NEW` to start over.")
         else:  # killed before its first checkpoint was written: start again from scratch
             state = None
         if folder.error_file.exists():
@@ -190,7 +196,7 @@ def clone_config(source: str, overrides: dict, trust_reward: bool = False) -> tu
     folder = model_folder(source)
     if not folder.exists():
         raise JobError(f"no model named {source!r} to clone (looked in {folder.root}).")
-    base = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
+    base = check_model_files(folder, what="clone")
     if overrides.get("reward_path") is None:
         check_reward_trusted(folder, trust_reward, f"laplab clone {source} NEW")
         overrides = {**overrides, "reward_path": str(folder.reward_function)}

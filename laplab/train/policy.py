@@ -15,6 +15,7 @@ from laplab.store.atomic import CorruptFileError
 from laplab.store.layout import ModelFolder, model_folder
 from laplab.train.checkpoint_read import read_checkpoint
 from laplab.train.config import TrainConfig
+from laplab.train.model_files import check_model_files
 from laplab.train.trainer import build_learner
 
 
@@ -57,7 +58,7 @@ def load_model_policy(name: str, checkpoint: str = "best", seed: int = 0) -> Mod
     folder = model_folder(name)
     if not folder.exists():
         raise FileNotFoundError(f"no model named {name!r} (looked in {folder.root}).")
-    config = TrainConfig.from_dict(folder.read_laplab_config(), str(folder.laplab_config))
+    config = check_model_files(folder, what="load", hyperparameter_keys=("stack_size",))  # laplab.json, and DeepRacer's files agree with it
     checkpoint_name, state = read_checkpoint(folder, checkpoint)
     # Driving, evaluation and export run in float32 whatever the training precision was.
     learner = build_learner(config, seed, precision="float32")

@@ -20,6 +20,7 @@ car before these generations (``laplab-classic``), which model folders trained b
 
 from __future__ import annotations
 
+from laplab.errors import UserError
 from laplab.vehicle.params import CLASSIC, DEEPRACER_V4, DEEPRACER_V5, DEEPRACER_V6, PRESETS
 
 DEFAULT_VERSION = "6"  # what DeepRacer on AWS writes into a new model's model_metadata.json
@@ -27,8 +28,10 @@ PHYSICS_CHOICES = {"4": DEEPRACER_V4.name, "5": DEEPRACER_V5.name, "6": DEEPRACE
 CAR_VERSIONS = {DEEPRACER_V4.name: "4", DEEPRACER_V5.name: "5", DEEPRACER_V6.name: "6"}
 
 
-class PhysicsError(ValueError):
+class PhysicsError(UserError, ValueError):
     """A physics version or car name that laplab does not know (names the value and the choices)."""
+
+    default_field = "physics"
 
 
 def car_for_version(version: str | float | None) -> str:

@@ -51,8 +51,7 @@ def test_a_job_that_dies_is_reported_and_exits_non_zero(laplab_cli, tmp_path, ti
     assert expect in err and "training job of model 'dies'" in err and "finished iteration" in err, err
     assert "laplab train --resume dies" in err and "Traceback" not in err
     assert expect in folder.read_error()
-    if "segmentation" in expect:
-        assert "reward function at" in err and "dies.py, line 7" in err, err  # where it crashed
+    assert "dies.py, line 7" in err, err  # where it crashed, exited or sent itself the signal
     assert not is_locked(folder.root)
     assert CheckpointStore(folder).last().name != "0_Step-0.ckpt"  # the checkpoints are kept
 
