@@ -104,7 +104,7 @@ def main() -> None:
     track = load_track(config.track)
     settings = EvaluationSettings(trials=args.trials, seed=args.seed, resets=args.resets,
                                   max_trial_time=args.max_trial_time)
-    vehicle = vehicle_preset(policy.config.vehicle)
+    vehicle = vehicle_preset(policy.config.car)
     runs = {"torch": evaluate_policy(policy, track, settings),
             "OpenVINO": evaluate_policy(drive_openvino, track, settings, spec=policy.spec, vehicle=vehicle)}
     for label, run in runs.items():

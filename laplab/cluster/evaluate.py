@@ -30,7 +30,7 @@ class MultiTrackEvaluator:
 
         self.config = config
         self.tracks = list(tracks)
-        vehicle = vehicle_preset(config.vehicle)
+        vehicle = vehicle_preset(config.car)
         self.parts = []
         for number, (name, reverse) in enumerate(self.tracks):
             sim = Simulator(load_track(name), config.eval_episodes, vehicle,

@@ -104,7 +104,7 @@ class RolloutWorker:
         params = config.episode_params()
         params = replace(params, reverse=setup.reverse,
                          start_ndist=(params.start_ndist + params.round_robin_advance * setup.start_offset) % 1.0)
-        self.sim = Simulator(track, setup.num_cars, vehicle_preset(config.vehicle), params)
+        self.sim = Simulator(track, setup.num_cars, vehicle_preset(config.car), params)
         randomization = None
         if config.domain_randomization:
             from laplab.sensors.randomize import RandomizationParams

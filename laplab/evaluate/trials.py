@@ -188,7 +188,7 @@ def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = Ev
     if vehicle is None:
         config = getattr(policy, "config", None)
         from laplab.vehicle.params import vehicle_preset
-        vehicle = vehicle_preset(config.vehicle) if config is not None else DEEPRACER
+        vehicle = vehicle_preset(config.car) if config is not None else DEEPRACER
     slots = 1 if settings.continuous else settings.trials
     episode = EpisodeParams(round_robin_advance=0.0, spread_starts=False, max_steps=2**62)
     sim = Simulator(track, slots, vehicle, episode)
@@ -243,7 +243,7 @@ def evaluate_model(name: str, settings: EvaluationSettings = EvaluationSettings(
     policy = load_model_policy(name, settings.checkpoint, seed=0 if settings.seed is None else settings.seed)
     config = policy.config
     track = load_track(settings.track) if settings.track else load_track(config.track, reverse=config.reverse)
-    vehicle = vehicle_preset(settings.physics or config.vehicle)
+    vehicle = vehicle_preset(settings.physics or config.car)
     try:
         optimal = optimal_lap_time(track, vehicle)
         standing = standing_start_optimal_lap_time(track, vehicle)
@@ -253,7 +253,7 @@ def evaluate_model(name: str, settings: EvaluationSettings = EvaluationSettings(
         optimal = standing = None
     result = evaluate_policy(policy, track, settings, vehicle=vehicle, optimal_lap_time=optimal,
                              standing_start_lap_time=standing)
-    result = replace(result, trained_car=config.vehicle)
+    result = replace(result, trained_car=config.car)
     stamp, result = save_evaluation(policy.folder, result)
     return result, stamp
 

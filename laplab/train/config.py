@@ -52,9 +52,9 @@ class TrainConfig:
     - ``workers``: rollout workers (``1``: in-process collection, no Ray; more: Ray actors, see
       :mod:`laplab.cluster`); the last session's count (``--resume --workers N`` changes it).
     - ``vehicle``: the car (a :mod:`laplab.vehicle.params` preset); empty: the one DeepRacer drives for
-      the model metadata's ``version`` (:func:`laplab.vehicle.physics.car_for_version`). A car given
-      explicitly (``--physics``) sets the metadata's version to match, so the model folder, its exports
-      and DeepRacer agree on it.
+      the model metadata's ``version`` (:func:`laplab.vehicle.physics.car_for_version`; :attr:`car` is
+      the car either way, and ``laplab.json`` records it). A car given explicitly (``--physics``) sets
+      the metadata's version to match, so the model folder, its exports and DeepRacer agree on it.
     - ``cloned_from``: for a clone, the model and checkpoint its weights came from
       (``"SOURCE (checkpoint NAME)"``); None for a model trained from scratch.
     """
@@ -105,16 +105,22 @@ class TrainConfig:
                                                                                  "hyperparameters"))
         elif self.hyperparameters is not None and not isinstance(self.hyperparameters, Hyperparameters):
             raise ConfigError(f"hyperparameters must be Hyperparameters, got {type(self.hyperparameters).__name__}")
-        if not self.vehicle:
-            object.__setattr__(self, "vehicle", car_for_version(self.model_metadata.version))
-        elif self.vehicle not in PRESETS:
-            raise ConfigError(f"physics: unknown car {self.vehicle!r}; known: {', '.join(sorted(PRESETS))}")
-        version = version_for_car(self.vehicle, self.model_metadata.version)
-        if version != self.model_metadata.version:
-            object.__setattr__(self, "model_metadata", replace(self.model_metadata, version=version))
+        if self.vehicle:
+            if self.vehicle not in PRESETS:
+                raise ConfigError(f"physics: unknown car {self.vehicle!r}; known: {', '.join(sorted(PRESETS))}",
+                                  field="physics")
+            version = version_for_car(self.vehicle, self.model_metadata.version)
+            if version != self.model_metadata.version:
+                object.__setattr__(self, "model_metadata", replace(self.model_metadata, version=version))
 
     def metadata(self) -> ModelMetadata:
         return self.model_metadata
+
+    @property
+    def car(self) -> str:
+        """The car this job drives (a :mod:`laplab.vehicle.params` preset name): ``vehicle``, else the
+        one the metadata's ``version`` chooses."""
+        return self.vehicle or car_for_version(self.model_metadata.version)
 
     def hyper(self) -> Hyperparameters:
         """The hyperparameters, laplab's defaults for this model when none were given."""
@@ -145,7 +151,7 @@ class TrainConfig:
         hyperparameters even if laplab's defaults change)."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}
         return {**values, "tracks": list(self.tracks), "model_metadata": self.model_metadata.to_dict(),
-                "hyperparameters": self.hyper().to_dict()}
+                "hyperparameters": self.hyper().to_dict(), "vehicle": self.car}
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "laplab.json") -> "TrainConfig":

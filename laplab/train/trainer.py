@@ -120,7 +120,7 @@ class Trainer:
         self.metadata = self.spec.metadata
         self.folder = None
         self._listeners: list = []
-        vehicle = vehicle_preset(config.vehicle)
+        vehicle = vehicle_preset(config.car)
         self.sim = Simulator(track, self.hp.num_episodes_between_training, vehicle, config.episode_params())
         self.eval_sim = Simulator(track, config.eval_episodes, vehicle,
                                   EpisodeParams(round_robin_advance=0.0, reverse=config.reverse))

@@ -125,8 +125,11 @@ def test_metadata_without_a_version_gets_deepracer_on_aws_car():
     metadata = metadata_from_dict({"action_space": {"steering_angle": {"low": -30, "high": 30},
                                                     "speed": {"low": 0.5, "high": 2}},
                                    "action_space_type": "continuous"}, "m.json")
-    assert TrainConfig(model_metadata=metadata).vehicle == "deepracer-v6"
-    assert TrainConfig(model_metadata={"version": "4"}).vehicle == "deepracer-v4"
+    assert TrainConfig(model_metadata=metadata).car == "deepracer-v6"
+    assert TrainConfig(model_metadata={"version": "4"}).car == "deepracer-v4"
+    # the metadata a job is given chooses the car, also through replace() of laplab's defaults
+    from dataclasses import replace
+    assert replace(TrainConfig(), model_metadata={"version": "5"}).car == "deepracer-v5"
     with pytest.raises(MetadataError, match="m.json: model_metadata.json \"version\" 'x' is not a number"):
         metadata_from_dict({"version": "x"}, "m.json")
 
@@ -136,9 +139,9 @@ def test_physics_override_sets_the_metadata_version_and_old_folders_keep_the_cla
     config = TrainConfig(vehicle="deepracer-v4")
     assert config.model_metadata.version == "4"
     old = {**TrainConfig().to_dict(), "version": 1, "vehicle": "deepracer"}
-    assert TrainConfig.from_dict(old).vehicle == "laplab-classic"
+    assert TrainConfig.from_dict(old).car == "laplab-classic"
     again = TrainConfig.from_dict(TrainConfig.from_dict(old).to_dict())
-    assert again.vehicle == "laplab-classic" and again.version == 2
+    assert again.car == "laplab-classic" and again.version == 2
 
 
 # ---------------------------------------------------------------- against DeepRacer's logs
