@@ -29,16 +29,17 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 
 
-def standing_optimum(track_name: str) -> tuple[float, float]:
-    """(flying, standing-start) lap times of the race line, s."""
+def standing_optimum(track_name: str, car: str) -> tuple[float, float]:
+    """(flying, standing-start) lap times of ``car``'s race line, s."""
     from laplab.track.raceline_cache import optimal_lap_time, standing_start_optimal_lap_time
     from laplab.track.registry import load_track
-    track = load_track(track_name)
-    return optimal_lap_time(track), standing_start_optimal_lap_time(track)
+    from laplab.vehicle.params import vehicle_preset
+    track, vehicle = load_track(track_name), vehicle_preset(car)
+    return optimal_lap_time(track, vehicle), standing_start_optimal_lap_time(track, vehicle)
 
 
 def train_and_evaluate(track: str, seed: int, minutes: list[float], sensor: str = "STATE",
-                       hyperparameters: dict | None = None) -> dict:
+                       hyperparameters: dict | None = None, car: str = "") -> dict:
     os.environ.setdefault("LAPLAB_HOME", tempfile.mkdtemp(prefix="laplab-bench-"))
     from laplab.env.metadata import ModelMetadata
     from laplab.evaluate.trials import EvaluationSettings, evaluate_model
@@ -48,7 +49,7 @@ def train_and_evaluate(track: str, seed: int, minutes: list[float], sensor: str 
 
     name = f"lapq-{seed}-{int(time.time() * 1000) % 10**8}"
     config = replace(TrainConfig(), track=track, seed=seed, max_time_s=60.0 * max(minutes),
-                     model_metadata=replace(ModelMetadata(), sensors=(sensor,)).to_dict())
+                     model_metadata=replace(ModelMetadata(), sensors=(sensor,)).to_dict(), vehicle=car)
     if hyperparameters:
         config = replace(config, hyperparameters={**config.hyper().to_dict(), **hyperparameters})
     trainer = create_training(name, config)
@@ -86,13 +87,16 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=1, help="seeds trained at once (one core each)")
     parser.add_argument("--sensor", default="STATE")
     parser.add_argument("--hyperparameters", default="{}", help="JSON of hyperparameters to override")
+    parser.add_argument("--physics", default="6", help="the car: 4, 5, 6 (default, DeepRacer on AWS's) or classic")
     args = parser.parse_args()
-    flying_opt, standing_opt = standing_optimum(args.track)
-    print(f"{args.track}: race line {flying_opt:.3f} s flying, {standing_opt:.3f} s from a standing start")
+    from laplab.vehicle.physics import resolve_physics
+    car = resolve_physics(args.physics)
+    flying_opt, standing_opt = standing_optimum(args.track, car)
+    print(f"{args.track}, {car}: race line {flying_opt:.3f} s flying, {standing_opt:.3f} s from a standing start")
     with ProcessPoolExecutor(args.jobs) as pool:
         n = len(args.seeds)
         runs = list(pool.map(train_and_evaluate, [args.track] * n, args.seeds, [args.minutes] * n,
-                             [args.sensor] * n, [json.loads(args.hyperparameters)] * n))
+                             [args.sensor] * n, [json.loads(args.hyperparameters)] * n, [car] * n))
     print(f"{'minutes':>7s} {'seed':>4s} {'env steps':>9s} {'rest lap s':>10s} {'/flying':>7s} {'/standing':>9s} "
           f"{'flying lap s':>12s} {'/flying':>7s}")
     nan = float("nan")

@@ -49,7 +49,7 @@ DEFAULT_TRACKS = ["classic_2018", str(REFERENCE / "reinvent_base.npy"), str(REFE
 
 def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s: float = 0.0,
                 precision: str = "auto", hyperparameters: dict | None = None, console: str | None = None,
-                workers: int = 1, device: str = "cpu", ray_address: str | None = None) -> dict:
+                workers: int = 1, device: str = "cpu", ray_address: str | None = None, car: str = "") -> dict:
     from laplab.cluster.launch import uses_ray
     from laplab.env.metadata import ModelMetadata
     from laplab.train.config import TrainConfig
@@ -61,7 +61,7 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
     else:
         metadata = replace(ModelMetadata(), sensors=(sensor,)).to_dict()
     config = replace(TrainConfig(), track=track, seed=seed, max_time_s=budget_s, model_metadata=metadata,
-                     precision=precision, workers=workers)
+                     precision=precision, workers=workers, vehicle=car)
     if hyperparameters:
         config = replace(config, hyperparameters={**config.hyper().to_dict(), **hyperparameters})
     name = f"bench-{Path(track).stem.replace('_', '-')}-{seed}-{int(time.time() * 1000) % 10**8}"
@@ -95,17 +95,19 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
             collector.close()
     elapsed = time.perf_counter() - started
     total = sum(seconds.values()) or 1.0
-    return {"lapped": bool(first), "wall": first.get("wall", float("nan")), "iterations": first.get("iterations", result.iterations),
+    return {"car": trainer.config.car, "lapped": bool(first), "wall": first.get("wall", float("nan")), "iterations": first.get("iterations", result.iterations),
             "steps": first.get("steps", result.env_steps), "eval_lap": first.get("lap"), "end_lap": end.get("lap"),
             "throughput": result.env_steps / max(elapsed, 1e-9),
             "shares": {key: value / total for key, value in seconds.items()}}
 
 
-def standing_optimum(track: str) -> float:
-    """The race line's lap time from rest, s (what a standing-start evaluation lap can reach)."""
+def standing_optimum(track: str, car: str = "") -> float:
+    """The race line's lap time from rest, s (what a standing-start evaluation lap can reach), for ``car``
+    (default: DeepRacer on AWS's, laplab's default)."""
     from laplab.track.raceline_cache import standing_start_optimal_lap_time
     from laplab.track.registry import load_track
-    return standing_start_optimal_lap_time(load_track(track))
+    from laplab.vehicle.params import DEEPRACER, vehicle_preset
+    return standing_start_optimal_lap_time(load_track(track), vehicle_preset(car) if car else DEEPRACER)
 
 
 def main() -> None:
@@ -122,7 +124,10 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=1, help="rollout workers on Ray (1: in-process)")
     parser.add_argument("--device", default="cpu", help="the learner's torch device: cpu or cuda")
     parser.add_argument("--ray-address", default=None, help="join this Ray cluster (default: a local Ray)")
+    parser.add_argument("--physics", default=None, help="the car: 4, 5, 6 or classic (default: the model's version)")
     args = parser.parse_args()
+    from laplab.vehicle.physics import resolve_physics
+    car = resolve_physics(args.physics) if args.physics else ""
     from laplab.cluster.launch import resolve_device, uses_ray
     from laplab.train.errors import JobError
     try:
@@ -130,6 +135,8 @@ def main() -> None:
     except JobError as error:
         raise SystemExit(f"time_to_lap.py: {error}") from None
     label = f"camera {args.console}" if args.console else args.sensor
+    if car:
+        label += f" {car}"
     if uses_ray(args.workers, args.ray_address):
         label += f" x{args.workers}"
     if device != "cpu":
@@ -143,13 +150,13 @@ def main() -> None:
             continue
         runs = [time_to_lap(track, seed, args.sensor, args.budget, args.min_time, args.precision,
                             json.loads(args.hyperparameters), args.console, args.workers, device,
-                            args.ray_address) for seed in args.seeds]
+                            args.ray_address, car) for seed in args.seeds]
         lapped = [r for r in runs if r["lapped"]]
         med = lambda key: statistics.median(r[key] for r in lapped) if lapped else float("nan")
         laps = [r["eval_lap"] for r in lapped if r["eval_lap"]]
         end_laps = [r["end_lap"] for r in runs if r["end_lap"]]
         end_lap = statistics.median(end_laps) if end_laps else float("nan")
-        optimum = standing_optimum(track) if end_laps else float("nan")
+        optimum = standing_optimum(track, runs[0]["car"]) if end_laps else float("nan")
         print(f"{Path(track).stem:28s} {label:20s} {len(lapped)}/{len(runs):<4d} {med('wall'):13.1f} "
               f"{med('iterations'):5.0f} {med('steps'):9.0f} {statistics.median(laps) if laps else float('nan'):10.2f} "
               f"{end_lap:9.2f} {end_lap / optimum:5.2f} "
