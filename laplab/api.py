@@ -93,13 +93,15 @@ class TrainingJob:
     @classmethod
     def start(cls, name: str, files: ModelFiles, track: str = "classic_2018", max_time: str = "10m",
               workers: int = 1, store: str | None = None, ray_address: str | None = None,
-              extra_args: tuple[str, ...] = (), log_folder: str | os.PathLike | None = None) -> "TrainingJob":
+              extra_args: tuple[str, ...] = (), log_folder: str | os.PathLike | None = None,
+              physics: str | None = None) -> "TrainingJob":
         """Start training model ``name`` in the background and return at once.
 
         ``track`` may be a list (``["reInvent2019_track", "Canada_Training@reversed"]``) for a
         multi-track job, one track per rollout worker in turn; ``workers`` > 1 runs rollout workers on
         Ray (a local one, or the cluster at ``ray_address``); ``store`` is ``s3://bucket/prefix`` or
-        None for ``$LAPLAB_HOME/models``.
+        None for ``$LAPLAB_HOME/models``; ``physics`` (4, 5, 6 or classic) DeepRacer's car to train with
+        (None: the one the model metadata's ``version`` chooses; docs/physics.md).
         """
         tracks = [track] if isinstance(track, str) else list(track)
         args = ["train", "--name", name, "--reward", str(files.reward_function),
@@ -111,6 +113,8 @@ class TrainingJob:
             args += ["--workers", str(workers)]
         if ray_address:
             args += ["--ray-address", ray_address]
+        if physics:
+            args += ["--physics", str(physics)]
         log = Path(log_folder or files.reward_function.parent) / f"{name}-training.log"
         with open(log, "wb") as out:
             process = subprocess.Popen(_laplab(*args, *extra_args), stdout=out, stderr=subprocess.STDOUT,
@@ -196,10 +200,13 @@ def _run(args: list[str], what: str) -> str:
 
 
 def evaluate(name: str, track: str | None = None, trials: int = 3, store: str | None = None,
-             extra_args: tuple[str, ...] = ()) -> dict[str, Any]:
-    """Evaluate model ``name`` as ``laplab evaluate`` does (DeepRacer's trial rules; kept in the model
-    folder) and return its result: ``trials`` (lap times, statuses, off-tracks), the summary."""
+             extra_args: tuple[str, ...] = (), physics: str | None = None) -> dict[str, Any]:
+    """Evaluate model ``name`` as ``laplab evaluate`` does (DeepRacer's trial rules, the car it trained
+    with unless ``physics`` names another; kept in the model folder) and return its result: ``trials``
+    (lap times, statuses, off-tracks), the summary, the ``car``."""
     args = ["evaluate", name, "--trials", str(trials), "--json", *_store_args(store), *extra_args]
+    if physics:
+        args += ["--physics", str(physics)]
     if track:
         args += ["--track", track]
     return json.loads(_run(args, f"evaluating {name!r}"))

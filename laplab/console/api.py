@@ -41,8 +41,10 @@ class CloneModel(BaseModel):
 
 
 class CreateModel(CloneModel):
-    """A new model: what a clone gives, and the training seed."""
+    """A new model: what a clone gives, the training seed and DeepRacer's car (``physics``: 4, 5, 6 or
+    classic; None: the one model_metadata's ``version`` chooses)."""
     seed: int = 0
+    physics: str | None = Field(None, max_length=32)
 
 
 class Resume(BaseModel):
@@ -98,7 +100,7 @@ def _field_of(exc: BaseException) -> str | None:
     return field if field in _REQUEST_FIELDS else None
 
 
-_REQUEST_FIELDS = ("hyperparameters", "model_metadata", "name", "track")
+_REQUEST_FIELDS = ("hyperparameters", "model_metadata", "name", "track", "physics")
 
 
 def own_model(request: Request, name: str, user: User) -> None:
@@ -225,6 +227,12 @@ async def create_model(body: CreateModel, request: Request, user: User = Depends
     _name_free(request, body.name)
     values = {"track": body.track, "model_metadata": body.model_metadata, "hyperparameters": body.hyperparameters,
               "max_time_s": body.max_time_s, "max_episodes": body.max_episodes, "seed": body.seed}
+    if body.physics:
+        from laplab.vehicle.physics import PhysicsError, resolve_physics
+        try:
+            values["vehicle"] = resolve_physics(body.physics)
+        except PhysicsError as exc:
+            raise bad_request(str(exc).replace("--physics", "physics"), "physics") from None
     config = _check_train_inputs(values)
     workers = _job_workers(request, body.workers, config.hyper().num_episodes_between_training)
     await _validate_and_claim(request, user, body, body.reward_function, body.track, body.model_metadata)

@@ -99,6 +99,7 @@ def test_reward_validation_reports_the_line(console):
     ({"name": "m-time", "max_time_s": -5}, 400, "max_time_s", "max time"),
     ({"name": "m-reward", "reward_function": BROKEN_REWARD}, 400, "reward_function", "line 3"),
     ({"name": "m-unknown", "colour": "red"}, 422, "colour", "Extra inputs"),
+    ({"name": "m-physics", "physics": "7b"}, 400, "physics", "physics '7b': write 4, 5 or 6"),
     ({"track": "oval"}, 422, "name", "Field required"),
 ])
 def test_create_model_refuses_bad_input_with_laplabs_message(console, body, status, field, words):
@@ -194,3 +195,15 @@ def test_tracks_examples_and_empty_leaderboard(console):
 def test_import_refuses_a_file_that_is_not_an_archive(console):
     answer = console.admin.post("/api/models/import", files={"file": ("x.tar.gz", b"not a tarball")})
     assert answer.status_code == 400 and "gzip" in answer.json()["detail"]["message"]
+
+
+def test_create_model_with_deepracers_car_of_a_generation(console):
+    """The Create form's physics: the model trains with that car and its folder records it."""
+    tiny = {"num_episodes_between_training": 4, "batch_size": 32, "num_epochs": 3}
+    created = console.admin.post("/api/models", json={"name": "v4-car", "physics": "4", "max_time_s": 3,
+                                                       "hyperparameters": tiny})
+    assert created.status_code == 201, created.text
+    model = console.wait_for(console.admin, "v4-car", ("ready", "failed"), timeout_s=300)
+    assert model["status"] == "ready", model.get("error")
+    detail = console.admin.get("/api/models/v4-car").json()
+    assert detail["config"]["vehicle"] == "deepracer-v4" and detail["config"]["model_metadata"]["version"] == "4"

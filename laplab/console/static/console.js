@@ -169,7 +169,8 @@ const Console = (() => {
       $("#speed-low").value = meta.action_space.speed.low; $("#speed-high").value = meta.action_space.speed.high; actions = [];
     }
     renderActions();
-    if (source) { for (const n of document.querySelectorAll("#vehicle-card input, #vehicle-card select, #vehicle-card button")) n.disabled = true; }
+    if (source) { for (const n of document.querySelectorAll("#vehicle-card input, #vehicle-card select, #vehicle-card button, #physics")) n.disabled = true; }
+    if (config?.vehicle && {"deepracer-v4": "4", "deepracer-v5": "5", "deepracer-v6": "6"}[config.vehicle]) $("#physics").value = {"deepracer-v4": "4", "deepracer-v5": "5", "deepracer-v6": "6"}[config.vehicle];
 
     const hp = {...defaults.hyperparameters, ...(config?.hyperparameters || {})};
     $("#hyperparameters").replaceChildren(...HP.map(([key, label, spec]) => el("div", {},
@@ -206,7 +207,7 @@ const Console = (() => {
       ev.preventDefault(); $("#submit").disabled = true;
       const body = {name: $("#name").value.trim(), description: $("#description").value, track: trackName, reward_function: reward.value,
                     hyperparameters: hyper(), max_time_s: +$("#max-time").value * 60};
-      if (!source) body.model_metadata = metadata();
+      if (!source) { body.model_metadata = metadata(); body.physics = $("#physics").value; }
       try { const m = await api("POST", source ? `/api/models/${source.name}/clone` : "/api/models", body); location.href = `/models/${m.name}`; }
       catch (e) { showErrors(e); $("#submit").disabled = false; }
     });
@@ -285,7 +286,7 @@ const Console = (() => {
       const cfg = model.config || {}; const meta = cfg.model_metadata || {};
       $("#config").replaceChildren(...[["Track", model.track], ["Sensor", (model.sensor || []).join(", ")], ["Algorithm", model.algorithm],
         ["Action space", meta.action_space_type === "continuous" ? "continuous" : `${(meta.action_space || []).length} discrete actions`],
-        ["Max time", duration(cfg.max_time_s)], ["Created", when(model.created)], ["Owner", model.owner], ["Description", model.description || "–"]]
+        ["Car", cfg.vehicle || "–"], ["Max time", duration(cfg.max_time_s)], ["Created", when(model.created)], ["Owner", model.owner], ["Description", model.description || "–"]]
         .map(([k, v]) => el("div", {}, el("span", {}, k), v ?? "–")));
       $("#reward-source").textContent = model.reward_function || "";
       renderWorkers();
