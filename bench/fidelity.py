@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import csv
 import json
-import platform
 import re
 import sys
 from dataclasses import replace
@@ -27,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from host import host_line  # bench/host.py
 from laplab.analysis.fidelity import SimtraceReadError, build_windows, find_simtraces, score
 from laplab.track.projection import project_points, track_arrays
 from laplab.track.registry import load_track
@@ -116,7 +116,7 @@ def main() -> int:
         return 2
     if args.clock == "fixed":
         windows = replace(windows, times=windows.times[:, :1] + np.arange(windows.times.shape[1]) / 15.0)
-    print(f"host: {platform.processor() or platform.machine()}, python {platform.python_version()}")
+    print(f"host: {host_line()}")
     print(f"{len(paths)} simtrace files below {root}, track {track.name} ({track.length:.2f} m), "
           f"{args.clock} clock, windows of {args.horizon} actions")
     print(f"car: {car} ({why})")

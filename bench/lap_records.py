@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import statistics
 import sys
 import time
 from pathlib import Path
 
+from host import host_line  # bench/host.py
 from laplab.track.geometry import load_route_file
 from laplab.track.raceline_cache import raceline_for
 from laplab.track.registry import load_track
@@ -45,7 +45,7 @@ def main() -> int:
     args = parser.parse_args()
     document = json.loads((HERE / "data" / "league_records.json").read_text(encoding="utf-8"))
     car = vehicle_preset(resolve_physics(args.physics or document["physics"]))
-    print(f"host: {platform.processor() or platform.machine()}; car {car.name} (old: {CLASSIC.name}), "
+    print(f"host: {host_line()}; car {car.name} (old: {CLASSIC.name}), "
           f"margin {args.margin} m, optimum from rest")
     print(f"{'route':<22} {'season':<8} {'community':>9} {'optimum':>8} {'ratio':>6} {'old opt':>8} {'ratio':>6}")
     ratios, old_ratios, started = [], [], time.perf_counter()
