@@ -28,6 +28,11 @@ def register(subparsers) -> None:
     parser.add_argument("--rollout-workers", type=int, default=None, metavar="N",
                         help="with --ray-address: rollout workers per training job, as deepracer-for-cloud's "
                              "DR_WORKERS (default 2; a request's `workers` may ask for fewer)")
+    parser.add_argument("--no-sandbox", action="store_true",
+                        help="run jobs without bubblewrap and still let users other than the admin in: every "
+                             "user's reward function then runs as the server's user and can read the database, the "
+                             "secret key and other users' models (a banner on every page says so). Without this "
+                             "flag a console whose sandbox is missing serves only its admin")
     parser.add_argument("--no-accounts", action="store_true",
                         help="everyone is the admin, no login (only with a loopback --host)")
     parser.set_defaults(func=run)
@@ -62,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from laplab.jobs.confinement import JobLimits
     cluster, warnings = _cluster(args)
     app = create_app(args.workers, open_access=args.no_accounts, limits=JobLimits(wall_margin_s=args.job_wall_margin),
-                     cluster=cluster)
+                     cluster=cluster, sandbox=False if args.no_sandbox else None, allow_unsandboxed=args.no_sandbox)
     store, service = app.state.store, app.state.service
     admin = store.admin()
     token = app.state.first_token
@@ -70,7 +75,11 @@ def run(args: argparse.Namespace) -> int:
         token = store.add_token(admin.id, "serve-link", lifetime_s=24 * 3600.0)
     shown = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
     url = f"http://{shown}:{args.port}/"
-    print(f"laplab console: {service.workers} job worker(s), jobs {'sandboxed with bubblewrap' if app.state.sandbox else 'NOT sandboxed (bubblewrap missing): limits and a clean environment only'}")
+    from laplab.console.safety import NO_SANDBOX_BANNER, NO_SANDBOX_REFUSAL
+    print(f"laplab console: {service.workers} job worker(s), jobs "
+          f"{'sandboxed with bubblewrap' if app.state.sandbox else 'NOT sandboxed: limits and a clean environment only'}")
+    if not app.state.sandbox:
+        print(f"warning: {NO_SANDBOX_BANNER if args.no_sandbox else NO_SANDBOX_REFUSAL}", flush=True)
     if cluster is not None:
         print(f"training jobs run {cluster.workers} rollout worker(s) each on the Ray cluster at {cluster.address} "
               "(their jobs keep the network)")

@@ -11,6 +11,9 @@ def register(subparsers) -> None:
     add = sub.add_parser("add", help="create a user and print their login token (shown once)")
     add.add_argument("name", help="user name (letters, digits, '-', '_', '.')")
     add.add_argument("--admin", action="store_true", help="the user sees every model")
+    add.add_argument("--no-sandbox", action="store_true",
+                     help="create a user although this machine has no working bubblewrap sandbox (their reward "
+                          "functions would run unconfined: the console must then be started with --no-sandbox)")
     add.set_defaults(func=run_add)
     token = sub.add_parser("token", help="print a new login token for an existing user")
     token.add_argument("name")
@@ -27,6 +30,13 @@ def _store():
 def run_add(args: argparse.Namespace) -> int:
     from laplab.errors import UserError
     from laplab.jobs.db import StoreError
+    if not args.admin and not args.no_sandbox:
+        from laplab.console.safety import NO_SANDBOX_REFUSAL
+        from laplab.jobs.confinement import bubblewrap_works
+        if not bubblewrap_works():
+            raise UserError(f"user {args.name!r} not created. {NO_SANDBOX_REFUSAL}".replace(
+                "only the admin may log in", "only the admin may log in (`laplab users add --no-sandbox` creates "
+                "the user anyway)"))
     store = _store()
     if store.admin() is None and not args.admin:
         from laplab.console.app import ensure_admin

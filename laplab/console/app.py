@@ -33,10 +33,12 @@ def ensure_admin(store: JobStore) -> str | None:
 
 def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_access: bool = False,
                limits: JobLimits = JobLimits(), tick_s: float | None = None, warm_cache: bool = True,
-               cluster=None) -> FastAPI:
+               cluster=None, allow_unsandboxed: bool = False) -> FastAPI:
     """The console app over ``$LAPLAB_HOME`` (database, secret key, model folders); ``warm_cache``
     compiles numba's kernels once in the background for new users' jobs (:mod:`laplab.jobs.warmup`);
-    ``cluster`` (a :class:`laplab.cluster.console.RayCluster`) runs training jobs' rollout workers on Ray."""
+    ``cluster`` (a :class:`laplab.cluster.console.RayCluster`) runs training jobs' rollout workers on Ray;
+    ``allow_unsandboxed`` (``laplab serve --no-sandbox``) lets users other than the admin in when jobs
+    run without bubblewrap (:mod:`laplab.console.safety`)."""
     from laplab.console import api, api_exports, api_results, pages
     from laplab.console.service import TICK_S
 
@@ -78,6 +80,7 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
                   description="DeepRacer's console on laplab: models, training jobs, evaluations, leaderboard.")
     app.state.store, app.state.service, app.state.secret = store, service, load_secret(home)
     app.state.open_access, app.state.sandbox = open_access, runner.sandbox
+    app.state.allow_unsandboxed = bool(allow_unsandboxed)
     app.state.cluster = cluster
     app.state.first_token = first_token
 

@@ -95,6 +95,8 @@ def require_user(request: Request) -> User:
 def _admit(request: Request, user: User | None, session: str | None) -> User:
     if user is None:
         raise NotLoggedIn()
+    from laplab.console.safety import refuse_unless_admitted
+    refuse_unless_admitted(request.app.state, user.is_admin)
     if session is not None and request.method not in SAFE_METHODS:
         sent = request.headers.get(CSRF_HEADER, "")
         if not hmac.compare_digest(sent, csrf_token(request.app.state.secret, session)):

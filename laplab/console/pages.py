@@ -6,6 +6,7 @@ Every page needs a user (a Bearer token or the session cookie), except the login
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 from fastapi import APIRouter, Depends, Form, HTTPException, Request
@@ -23,7 +24,9 @@ router = APIRouter(include_in_schema=False)
 def _page(request: Request, template: str, user: User, **context) -> HTMLResponse:
     session = getattr(request.state, "session", None)
     token = csrf_token(request.app.state.secret, session) if session else ""
-    return TEMPLATES.TemplateResponse(request, template, {"user": user, "csrf": token, **context})
+    from laplab.console.safety import banner
+    return TEMPLATES.TemplateResponse(request, template, {"user": user, "csrf": token,
+                                                          "banner": banner(request.app.state), **context})
 
 
 def _defaults() -> dict:
@@ -37,7 +40,13 @@ def _defaults() -> dict:
 def login_page(request: Request, token: str | None = None):
     if token:
         return _login(request, token)
-    return TEMPLATES.TemplateResponse(request, "login.html", {"error": None})
+    return _login_page(request, None)
+
+
+def _login_page(request: Request, error: str | None, status_code: int = 200):
+    from laplab.console.safety import banner
+    return TEMPLATES.TemplateResponse(request, "login.html", {"error": error, "banner": banner(request.app.state)},
+                                      status_code=status_code)
 
 
 @router.post("/login", response_class=HTMLResponse)
@@ -46,9 +55,12 @@ def login_form(request: Request, token: str = Form("")):
 
 
 def _login(request: Request, token: str):
+    from laplab.console.safety import NO_SANDBOX_REFUSAL, may_admit
     user = request.app.state.store.user_for_token(token)
     if user is None:
-        return TEMPLATES.TemplateResponse(request, "login.html", {"error": "unknown or expired token"}, status_code=401)
+        return _login_page(request, "unknown or expired token", 401)
+    if not may_admit(request.app.state, user.is_admin):
+        return _login_page(request, NO_SANDBOX_REFUSAL, 403)
     session = request.app.state.store.new_session(user.id)
     response = RedirectResponse("/", status_code=303)
     response.set_cookie(SESSION_COOKIE, session, httponly=True, samesite="strict", max_age=7 * 24 * 3600,
@@ -130,7 +142,12 @@ def report_page(name: str, request: Request, user: User = Depends(current_user))
     page = Path(output.strip().splitlines()[-1])
     if not page.is_file():
         raise HTTPException(500, "laplab report wrote no page")
-    return HTMLResponse(page.read_text(encoding="utf-8"), headers={"Cache-Control": "no-store"})
+    from laplab.console.safety import banner_html
+    html = page.read_text(encoding="utf-8")
+    notice = banner_html(request.app.state)
+    if notice:
+        html = re.sub(r"(<body[^>]*>)", lambda m: m.group(1) + notice, html, count=1)
+    return HTMLResponse(html, headers={"Cache-Control": "no-store"})
 
 
 @router.get("/models/{name}/report/{file}")

@@ -93,8 +93,10 @@ def validate_confined(source: str, track: str | None, model_metadata: dict | Non
         try:
             return json.loads(lines[-1])
         except (IndexError, ValueError):
-            tail = done.stderr.decode(errors="replace").strip().splitlines()[-3:]
-            return {"ok": False, "errors": [{"line": None, "message": "validation failed: " + " ".join(tail)}]}
+            # not its output: whatever the reward function printed (files, the environment) stays out of the answer
+            return {"ok": False, "errors": [{"line": None, "message": (
+                f"the validation ended without an answer (exit status {done.returncode}): the reward function "
+                "ended its process (os._exit, a signal, a crash) or used up its limits")}]}
     finally:
         import shutil
         shutil.rmtree(scratch, ignore_errors=True)
