@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--job-wall-margin must be a positive number of seconds, got {args.job_wall_margin}")
     from laplab.jobs.confinement import JobLimits
     cluster, warnings = _cluster(args)
-    app = create_app(args.workers, open_access=args.no_accounts, limits=JobLimits(wall_margin_s=args.job_wall_margin),
+    app = create_app(args.workers, open_access=args.no_accounts, limits=JobLimits.console(wall_margin_s=args.job_wall_margin),
                      cluster=cluster, sandbox=False if args.no_sandbox else None, allow_unsandboxed=args.no_sandbox)
     store, service = app.state.store, app.state.service
     admin = store.admin()

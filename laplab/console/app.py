@@ -32,7 +32,7 @@ def ensure_admin(store: JobStore) -> str | None:
 
 
 def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_access: bool = False,
-               limits: JobLimits = JobLimits(), tick_s: float | None = None, warm_cache: bool = True,
+               limits: JobLimits | None = None, tick_s: float | None = None, warm_cache: bool = True,
                cluster=None, allow_unsandboxed: bool = False) -> FastAPI:
     """The console app over ``$LAPLAB_HOME`` (database, secret key, model folders); ``warm_cache``
     compiles numba's kernels once in the background for new users' jobs (:mod:`laplab.jobs.warmup`);
@@ -47,6 +47,7 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
     store = JobStore()
     first_token = ensure_admin(store)
     workers = workers or default_workers()
+    limits = limits if limits is not None else JobLimits.console()
     runner = LocalProcessRunner(limits, sandbox=sandbox, cluster=cluster, threads_per_job=threads_per_job(workers))
     service = ConsoleService(store, runner, workers)
     interval = tick_s or TICK_S

@@ -25,7 +25,7 @@ def _laplab(args: list[str], cwd: Path) -> str:
     env = clean_environment({"LAPLAB_HOME": str(laplab_home())}, sandboxed=False)
     try:
         done = subprocess.run([sys.executable, "-m", "laplab.cli", *args], capture_output=True, env=env, cwd=cwd,
-                              timeout=EXPORT_TIMEOUT_S, preexec_fn=limits_preexec(JobLimits(cpu_seconds=600)))
+                              timeout=EXPORT_TIMEOUT_S, preexec_fn=limits_preexec(JobLimits.console(cpu_seconds=600)))
     except subprocess.TimeoutExpired:
         raise ExportError(f"`laplab {args[0]}` did not finish within {EXPORT_TIMEOUT_S:g} s") from None
     if done.returncode != 0:

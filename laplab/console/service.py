@@ -323,7 +323,7 @@ class ConsoleService:
             status, error = "failed", runner_error
         elif status not in ("done", "failed"):
             status = "failed"
-            error = error or _death_reason(returncode, job_folder(job_id) / "log.txt")
+            error = error or _death_reason(job, returncode, getattr(self.runner, "limits", None))
         self.store.update_job(job_id, status=status, finished=time.time(), error=error, result=result or None,
                               progress=100.0 if status == "done" else job.progress)
         self._event_offsets.pop(job_id, None)
@@ -351,22 +351,38 @@ def _best_with_evaluations(folder: ModelFolder, best: float | None) -> float | N
     return best
 
 
-def _death_reason(returncode: int, log: Path) -> str:
+def _death_reason(job: Job, returncode: int, limits) -> str:
+    """The paragraph of the CLI's supervisor (:func:`laplab.jobs.diagnosis.describe_death`) for a job
+    that ended without writing its result: how it died, its last iteration, the reward function's line
+    from the job's crash log; no server paths."""
+    import re
     import signal
+
+    from laplab.jobs.confinement import JobLimits
+    from laplab.jobs.diagnosis import describe_death
+    from laplab.jobs.runner import CRASH_LOG
+    folder = job_folder(job.id)
     number = -returncode if returncode < 0 else returncode - 128 if 128 < returncode < 160 else None
-    if number is not None:  # killed by a signal (bubblewrap reports its child's as 128 + N)
-        try:
-            name = signal.Signals(number).name
-        except ValueError:
-            name = f"signal {number}"
-        why = {"SIGXCPU": "it used up its CPU-time limit", "SIGKILL": "it was killed (memory or a stop)"}.get(name, name)
-        return f"the job process ended by {name}: {why}"
-    tail = ""
+    if number is not None and number not in signal.Signals._value2member_map_:
+        number = None
+    iteration = None
     try:
-        tail = log.read_text(errors="replace").strip().splitlines()[-1]
-    except (OSError, IndexError):
+        for line in (folder / "events.jsonl").read_text(errors="replace").splitlines():
+            if '"iteration"' in line and '"report"' in line:
+                iteration = json.loads(line)["report"].get("iteration", iteration)
+    except (OSError, ValueError, KeyError):
         pass
-    return f"the job process exited with status {returncode}" + (f": {tail}" if tail else "")
+    try:
+        crash = (folder / CRASH_LOG).read_text(errors="replace")
+    except OSError:
+        crash = ""
+    reports = {"model": job.model, "what": "training job" if job.kind in TRAIN_KINDS else f"{job.kind} job"}
+    if iteration is not None:
+        reports["iteration"] = iteration
+    message = describe_death(reports, None if number is not None else returncode, number, crash,
+                             limits or JobLimits.console(), None, "job")
+    message = re.sub(r"\S*/reward_function\.py", "reward_function.py", message)
+    return message.replace(" (--cpu-limit)", "") + " The model keeps its last checkpoint."
 
 
 def default_workers() -> int:

@@ -28,17 +28,8 @@ _PENDING_LIMIT = 4 << 20  # bytes of reward output kept in memory until the job 
 
 def die_with_parent() -> None:
     """Ask Linux to SIGKILL this process when the process that started it ends (no-op elsewhere)."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        import ctypes
-        libc = ctypes.CDLL(None, use_errno=True)
-        parent = os.getppid()
-        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
-        if os.getppid() != parent:  # the supervisor died before prctl took effect
-            os._exit(1)
-    except (OSError, AttributeError):
-        pass
+    from laplab.jobs.confinement import die_with_parent as confined_die_with_parent
+    confined_die_with_parent()
 
 
 class ExitCalled(SystemExit):

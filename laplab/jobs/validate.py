@@ -84,7 +84,7 @@ def validate_confined(source: str, track: str | None, model_metadata: dict | Non
         request = json.dumps({"source": source, "track": track, "model_metadata": model_metadata})
         try:
             done = subprocess.run(command, input=request.encode(), capture_output=True, env=env,
-                                  timeout=VALIDATION_TIMEOUT_S, preexec_fn=limits_preexec(JobLimits(cpu_seconds=120)),
+                                  timeout=VALIDATION_TIMEOUT_S, preexec_fn=limits_preexec(JobLimits.console(cpu_seconds=120)),
                                   cwd=None if use else str(scratch))
         except subprocess.TimeoutExpired:
             return {"ok": False, "errors": [{"line": None, "message": f"validation did not finish within "
