@@ -160,6 +160,14 @@ async def _validate_reward(request: Request, user: User, source: str, track: str
                                    request.app.state.sandbox)
 
 
+def check_max_time(request: Request, max_time_s: float | None) -> None:
+    """400 naming ``max_time_s`` for a training longer than this console allows."""
+    from laplab.console.limits import check_max_time as over_cap
+    message = over_cap(max_time_s, request.app.state.limits.max_time_s)
+    if message:
+        raise bad_request(message, "max_time_s")
+
+
 def _name_free(request: Request, name: str) -> None:
     from laplab.store.layout import ModelNameError, validate_model_name
     try:
@@ -226,6 +234,7 @@ async def _validate_and_claim(request: Request, user: User, body: CloneModel, re
 @router.post("/models", status_code=201)
 async def create_model(body: CreateModel, request: Request, user: User = Depends(current_user)) -> dict:
     service = _service(request)
+    check_max_time(request, body.max_time_s)
     _name_free(request, body.name)
     values = {"track": body.track, "model_metadata": body.model_metadata, "hyperparameters": body.hyperparameters,
               "max_time_s": body.max_time_s, "max_episodes": body.max_episodes, "seed": body.seed}
@@ -292,9 +301,12 @@ def resume_model(name: str, request: Request, body: Resume | None = None, user: 
     max_time = body.max_time_s if body and body.max_time_s else None
     if max_time is not None and not (math.isfinite(max_time) and max_time > 0):
         raise bad_request(f"max time must be a positive number of seconds, got {max_time!r}", "max_time_s")
+    check_max_time(request, max_time)
     saved = json.loads((models_dir() / name / "laplab.json").read_text())
     if max_time is None:  # the saved budget, named in the job so that its wall-clock limit follows from it
         max_time = saved.get("max_time_s")
+        if max_time is not None:
+            max_time = min(float(max_time), request.app.state.limits.max_time_s)
     episodes = (saved.get("hyperparameters") or {}).get("num_episodes_between_training") or 20
     workers = _job_workers(request, body.workers if body else None, episodes)
     owner = service.owners()[name]
@@ -310,6 +322,7 @@ async def clone_model(name: str, body: CloneModel, request: Request, user: User 
         raise HTTPException(409, f"{name!r} is training: clone it when its training has ended")
     if not (models_dir() / name / "laplab.json").exists():
         raise HTTPException(409, f"{name!r} has no laplab training configuration to clone from")
+    check_max_time(request, body.max_time_s)
     _name_free(request, body.name)
     source_config = json.loads((models_dir() / name / "laplab.json").read_text())
     if body.model_metadata is not None:

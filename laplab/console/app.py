@@ -13,6 +13,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 
 from laplab.console.auth import current_user, load_secret
+from laplab.console.limits import BodyLimit, LoginThrottle
 from laplab.console.service import ConsoleService, default_workers, threads_per_job
 from laplab.jobs.db import JobStore, User, laplab_home
 from laplab.jobs.runner import LocalProcessRunner
@@ -33,12 +34,15 @@ def ensure_admin(store: JobStore) -> str | None:
 
 def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_access: bool = False,
                limits: JobLimits | None = None, tick_s: float | None = None, warm_cache: bool = True,
-               cluster=None, allow_unsandboxed: bool = False) -> FastAPI:
+               cluster=None, allow_unsandboxed: bool = False, max_body_bytes: int = 1 << 20,
+               max_upload_bytes: int = 1 << 30) -> FastAPI:
     """The console app over ``$LAPLAB_HOME`` (database, secret key, model folders); ``warm_cache``
     compiles numba's kernels once in the background for new users' jobs (:mod:`laplab.jobs.warmup`);
     ``cluster`` (a :class:`laplab.cluster.console.RayCluster`) runs training jobs' rollout workers on Ray;
     ``allow_unsandboxed`` (``laplab serve --no-sandbox``) lets users other than the admin in when jobs
-    run without bubblewrap (:mod:`laplab.console.safety`)."""
+    run without bubblewrap (:mod:`laplab.console.safety`); ``max_body_bytes`` / ``max_upload_bytes``:
+    the largest request body (import: upload) accepted, and ``limits.max_time_s`` the longest training
+    (:mod:`laplab.console.limits`)."""
     from laplab.console import api, api_exports, api_results, pages
     from laplab.console.service import TICK_S
 
@@ -82,6 +86,8 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
     app.state.store, app.state.service, app.state.secret = store, service, load_secret(home)
     app.state.open_access, app.state.sandbox = open_access, runner.sandbox
     app.state.allow_unsandboxed = bool(allow_unsandboxed)
+    app.state.limits, app.state.login_throttle = limits, LoginThrottle()
+    app.add_middleware(BodyLimit, json_bytes=max_body_bytes, upload_bytes=max_upload_bytes)
     app.state.cluster = cluster
     app.state.first_token = first_token
 

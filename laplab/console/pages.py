@@ -55,8 +55,12 @@ def login_form(request: Request, token: str = Form("")):
 
 
 def _login(request: Request, token: str):
+    from laplab.console.auth import user_for_token
     from laplab.console.safety import NO_SANDBOX_REFUSAL, may_admit
-    user = request.app.state.store.user_for_token(token)
+    try:
+        user = user_for_token(request.app.state, token)
+    except HTTPException as exc:  # throttled
+        return _login_page(request, exc.detail["message"], exc.status_code)
     if user is None:
         return _login_page(request, "unknown or expired token", 401)
     if not may_admit(request.app.state, user.is_admin):
