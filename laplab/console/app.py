@@ -43,7 +43,7 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
     run without bubblewrap (:mod:`laplab.console.safety`); ``max_body_bytes`` / ``max_upload_bytes``:
     the largest request body (import: upload) accepted, and ``limits.max_time_s`` the longest training
     (:mod:`laplab.console.limits`)."""
-    from laplab.console import api, api_exports, api_results, pages
+    from laplab.console import api, api_exports, api_results, api_users, pages
     from laplab.console.service import TICK_S
 
     home = laplab_home()
@@ -108,5 +108,6 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
     app.include_router(api.router)
     app.include_router(api_results.router)
     app.include_router(api_exports.router)
+    app.include_router(api_users.router)
     app.include_router(pages.router)
     return app

@@ -26,6 +26,7 @@ from laplab.store.layout import ModelFolder, list_models
 TICK_S = 1.0 / 30.0
 LIST_TTL_S = 0.25
 QUEUE_CHECK_S = 1.0  # the scheduler reads the queue at least this often while a worker is free
+CREDENTIALS_CHECK_S = 0.5  # how soon `laplab users revoke / disable / remove` takes effect in a running server
 TRAIN_KINDS = ("train", "clone", "resume")
 MODEL_STATUS = {"queued": "queued", "running": "training", "stopping": "stopping", "done": "ready",
                 "failed": "failed", "interrupted": "interrupted"}
@@ -104,6 +105,7 @@ class ConsoleService:
         self._list_generation = 0
         self._list_refreshing: set[int] = set()
         self._queue_changed, self._queue_checked = True, 0.0  # the queue is read when it may have changed
+        self._credentials_checked = 0.0
 
     # -- models ------------------------------------------------------------------------------------
 
@@ -145,7 +147,7 @@ class ConsoleService:
         return summary
 
     def _user_name(self, user_id: int | None) -> str | None:
-        user = self.store.user_by_id(user_id) if user_id is not None else None
+        user = self.store.user_by_id(user_id, enabled=False) if user_id is not None else None
         return user.name if user else None
 
     def cached_models_json(self, user: User) -> tuple[bytes | None, bool]:
@@ -238,6 +240,10 @@ class ConsoleService:
 
     def tick(self) -> None:
         """One scheduler step (cheap: a few stats and small reads)."""
+        if time.monotonic() - self._credentials_checked >= CREDENTIALS_CHECK_S:
+            self._credentials_checked = time.monotonic()
+            if self.store.credentials_changed():
+                self.models_changed()
         for finished in self.runner.poll():
             self._finish(finished.job_id, finished.returncode, finished.error)
         running = self.store.jobs(status=("running", "stopping"))
