@@ -303,15 +303,30 @@ def resume_model(name: str, request: Request, body: Resume | None = None, user: 
         raise bad_request(f"max time must be a positive number of seconds, got {max_time!r}", "max_time_s")
     check_max_time(request, max_time)
     saved = json.loads((models_dir() / name / "laplab.json").read_text())
-    if max_time is None:  # the saved budget, named in the job so that its wall-clock limit follows from it
-        max_time = saved.get("max_time_s")
-        if max_time is not None:
-            max_time = min(float(max_time), request.app.state.limits.max_time_s)
+    if max_time is None:
+        max_time = _default_resume_time(request, name, saved)
     episodes = (saved.get("hyperparameters") or {}).get("num_episodes_between_training") or 20
     workers = _job_workers(request, body.workers if body else None, episodes)
     owner = service.owners()[name]
     job = service.submit("resume", name, owner, {**({"max_time_s": max_time} if max_time else {}), **workers})
     return {**service.describe(name), "job": job.to_dict()}
+
+
+def _default_resume_time(request: Request, name: str, saved: dict) -> float | None:
+    """A resume's budget when the request names none: after an interruption (a server stop, a crash
+    of the server) only the time the interrupted job had left; else the saved max time. Capped by the
+    console's limit, and named in the job so that its wall-clock limit follows from it."""
+    from laplab.console.service import TRAIN_KINDS, time_left_s
+    jobs = _service(request).store.jobs(model=name, kind=TRAIN_KINDS)
+    if jobs and jobs[-1].status == "interrupted":
+        left = time_left_s(jobs[-1])
+        if left is not None and left < 1.0:
+            raise HTTPException(409, {"message": f"{name!r} had used its whole max time when it was interrupted: "
+                                                 "name a new max_time_s to train it further", "field": "max_time_s"})
+        if left is not None:
+            return min(left, request.app.state.limits.max_time_s)
+    budget = saved.get("max_time_s")
+    return None if budget is None else min(float(budget), request.app.state.limits.max_time_s)
 
 
 @router.post("/models/{name}/clone", status_code=201)

@@ -73,12 +73,13 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
             yield
         finally:
             task.cancel()
+            service.server_stopping = True  # jobs stopped now become `interrupted`, resumable with their time left
             if warmup is not None and warmup.poll() is None:
                 warmup.kill()
                 warmup.wait()
             await asyncio.get_running_loop().run_in_executor(None, runner.shutdown)
             service.tick()
-            store.interrupt_running()
+            store.interrupt_running()  # any the runner could not reap
 
     app = FastAPI(title="laplab console", version="1", lifespan=lifespan, openapi_url=None, docs_url=None,
                   redoc_url=None,

@@ -106,6 +106,7 @@ class ConsoleService:
         self._list_refreshing: set[int] = set()
         self._queue_changed, self._queue_checked = True, 0.0  # the queue is read when it may have changed
         self._credentials_checked = 0.0
+        self.server_stopping = False  # set by the app's shutdown: jobs it stops become `interrupted`
 
     # -- models ------------------------------------------------------------------------------------
 
@@ -327,6 +328,9 @@ class ConsoleService:
         error = result.get("error")
         if runner_error is not None:  # the runner ended it (wall-clock limit), whatever it wrote last
             status, error = "failed", runner_error
+        elif self.server_stopping and job.status == "running" and result.get("stop_reason") in (None, "stopped") \
+                and status != "failed":  # stopped by the server's shutdown, not by its owner or its budget
+            status, error = "interrupted", INTERRUPTED_BY_SHUTDOWN
         elif status not in ("done", "failed"):
             status = "failed"
             error = error or _death_reason(job, returncode, getattr(self.runner, "limits", None))
@@ -339,6 +343,25 @@ class ConsoleService:
             target.rmdir()  # validation failed before anything was written
         model_status = MODEL_STATUS[status] if job.kind in TRAIN_KINDS else status
         self._publish_status(job.model, job_id, model_status, kind=job.kind, error=error)
+
+
+INTERRUPTED_BY_SHUTDOWN = ("the server stopped while this job ran; it kept its last checkpoint: resume it to "
+                           "continue with the time it had left")
+
+
+def time_left_s(job: Job) -> float | None:
+    """What an interrupted training job had left of its max time at its last checkpoint (the trainer's
+    ``time_left_s`` of its last iteration; its whole budget before its first), or None when unknown."""
+    budget = job.params.get("max_time_s")
+    left = float(budget) if budget else None
+    try:
+        with open(job_folder(job.id) / "events.jsonl", encoding="utf-8", errors="replace") as events:
+            for line in events:
+                if line.startswith('{"type": "iteration"'):
+                    left = float(json.loads(line)["report"]["time_left_s"])
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return left
 
 
 def _best_with_evaluations(folder: ModelFolder, best: float | None) -> float | None:
