@@ -36,6 +36,14 @@ def _defaults() -> dict:
             "sensors": ALL_SENSORS, "networks": NETWORKS, "algorithms": ALGORITHMS}
 
 
+def _model_key(request: Request, name: str, user: User) -> str:
+    """The key of the model ``user`` calls ``name`` (names are per user); 404 when they have none."""
+    key = request.app.state.service.resolve(user, name)
+    if key is None:
+        raise HTTPException(404, f"no model named {name!r} among your models")
+    return key
+
+
 @router.get("/login", response_class=HTMLResponse)
 def login_page(request: Request, token: str | None = None):
     if token:
@@ -106,10 +114,9 @@ def create_page(request: Request, clone: str | None = None, user: User = Depends
     source = None
     if clone:
         service = request.app.state.service
-        if not service.can_see(user, clone):
-            raise HTTPException(404, f"no model named {clone!r} among your models")
+        key = _model_key(request, clone, user)
         from laplab.jobs.runner import models_dir
-        folder = models_dir() / clone
+        folder = models_dir() / key
         config = json.loads((folder / "laplab.json").read_text())
         source = {"name": clone, "config": config, "reward": (folder / "reward_function.py").read_text()}
     return _page(request, "create.html", user, title="Clone model" if clone else "Create model",
@@ -118,16 +125,14 @@ def create_page(request: Request, clone: str | None = None, user: User = Depends
 
 @router.get("/models/{name}", response_class=HTMLResponse)
 def model_page(name: str, request: Request, user: User = Depends(current_user)):
-    if not request.app.state.service.can_see(user, name):
-        raise HTTPException(404, f"no model named {name!r} among your models")
+    _model_key(request, name, user)
     return _page(request, "model.html", user, title=name, model=name)
 
 
 @router.get("/models/{name}/report", response_class=HTMLResponse)
 def report_redirect(name: str, request: Request, user: User = Depends(current_user)):
     """The report lives at ``.../report/`` so that its figures (files beside the page) resolve."""
-    if not request.app.state.service.can_see(user, name):
-        raise HTTPException(404, f"no model named {name!r} among your models")
+    _model_key(request, name, user)
     return RedirectResponse(f"/models/{name}/report/", status_code=307)
 
 
@@ -135,8 +140,7 @@ def report_redirect(name: str, request: Request, user: User = Depends(current_us
 def report_page(name: str, request: Request, user: User = Depends(current_user)):
     """The model's HTML report (``laplab report``), built in a child process; its figures are
     served by :func:`report_file`."""
-    if not request.app.state.service.can_see(user, name):
-        raise HTTPException(404, f"no model named {name!r} among your models")
+    name = _model_key(request, name, user)
     from laplab.console.exports import ExportError, _laplab
     from laplab.jobs.runner import models_dir
     try:
@@ -157,8 +161,7 @@ def report_page(name: str, request: Request, user: User = Depends(current_user))
 @router.get("/models/{name}/report/{file}")
 def report_file(name: str, file: str, request: Request, user: User = Depends(current_user)):
     """A figure (PNG), video or data file of the model's last built report."""
-    if not request.app.state.service.can_see(user, name):
-        raise HTTPException(404, f"no model named {name!r} among your models")
+    name = _model_key(request, name, user)
     from laplab.jobs.runner import models_dir
     folder = (models_dir() / name / "report").resolve()
     target = (folder / file).resolve()

@@ -32,6 +32,19 @@ MODEL_STATUS = {"queued": "queued", "running": "training", "stopping": "stopping
                 "failed": "failed", "interrupted": "interrupted"}
 
 
+def model_key(user: User, name: str) -> str:
+    """The folder (and job, database) name of ``user``'s model ``name``: model names are per user, so
+    two users may both have ``my-first-model`` (``u7-my-first-model``, ``u9-my-first-model``). The
+    admin's models (and the CLI's) keep their names."""
+    return name if user.is_admin else f"u{user.id}-{name}"
+
+
+def display_name(key: str, owner: int | None) -> str:
+    """The name ``key``'s owner knows it by."""
+    prefix = f"u{owner}-"
+    return key[len(prefix):] if owner is not None and key.startswith(prefix) else key
+
+
 def _iso(timestamp: float | None) -> str | None:
     return None if timestamp is None else datetime.fromtimestamp(timestamp, timezone.utc).isoformat(timespec="seconds")
 
@@ -117,9 +130,23 @@ class ConsoleService:
         names = set(list_models(models_dir())) | set(records)
         return {n: int(records[n]["owner"]) if n in records else (admin.id if admin else 0) for n in names}
 
+    def resolve(self, user: User, name: str) -> str | None:
+        """The key of the model ``user`` calls ``name`` (None when there is none they may see): their own
+        model of that name; for the admin also any model by its key (what the admin's list shows)."""
+        owners = self.owners()
+        key = model_key(user, name)
+        if key in owners and (user.is_admin or owners[key] == user.id):
+            return key
+        if user.is_admin and name in owners:
+            return name
+        return None
+
     def can_see(self, user: User, name: str) -> bool:
-        owner = self.owners().get(name)
-        return owner is not None and (user.is_admin or owner == user.id)
+        return self.resolve(user, name) is not None
+
+    def handle(self, key: str, owner: int | None, viewer: User | None) -> str:
+        """How ``viewer`` names model ``key`` (its owner: their own name; the admin: the key)."""
+        return display_name(key, owner) if viewer is None or viewer.id == owner else key
 
     def model_status(self, name: str, summary: dict, jobs: list[Job] | None = None) -> tuple[str, Job | None]:
         jobs = jobs if jobs is not None else self.store.jobs(model=name, kind=TRAIN_KINDS)
@@ -129,12 +156,14 @@ class ConsoleService:
         return ("failed" if summary.get("error") else "ready"), None
 
     def describe(self, name: str, owner: int | None = None, jobs: list[Job] | None = None,
-                 records: dict | None = None) -> dict:
+                 records: dict | None = None, viewer: User | None = None) -> dict:
+        """Model ``name`` (its key) as ``viewer`` sees it (``name``: what they call it; None: its owner)."""
         summary = dict(self.catalog.summary(name))
         status, job = self.model_status(name, summary, jobs)
         record = (records if records is not None else self.store.model_records()).get(name)
-        summary.update(status=status, description=record["description"] if record else "",
-                       owner=self._user_name(owner if owner is not None else self.owners().get(name)),
+        owner = owner if owner is not None else self.owners().get(name)
+        summary.update(name=self.handle(name, owner, viewer), status=status,
+                       description=record["description"] if record else "", owner=self._user_name(owner),
                        progress=job.progress if job else (100.0 if status == "ready" else 0.0),
                        job=job.to_dict() if job else None)
         if not summary["exists"] and job is not None:  # queued: nothing on disk yet, show what was asked
@@ -196,8 +225,8 @@ class ConsoleService:
         for job in all_jobs:
             by_model.setdefault(job.model, []).append(job)
         records = self.store.model_records()
-        out = [self.describe(name, owner, by_model.get(name, []), records) for name, owner in sorted(self.owners().items())
-               if user.is_admin or owner == user.id]
+        out = [self.describe(name, owner, by_model.get(name, []), records, user)
+               for name, owner in sorted(self.owners().items()) if user.is_admin or owner == user.id]
         return sorted(out, key=lambda m: m["created"] or "", reverse=True)
 
     def active_job(self, name: str) -> Job | None:
