@@ -184,7 +184,8 @@ def _name_free(request: Request, name: str, user: User) -> str:
                                  "on this console")
     except ModelNameError as exc:
         raise bad_request(str(exc), "name") from None
-    if key in _service(request).owners() or (models_dir() / key).exists():
+    owners = _service(request).owners()
+    if key in owners or (models_dir() / key).exists() or owners.get(name) == user.id:
         raise HTTPException(409, {"message": f"you already have a model named {name!r}; models are immutable: "
                                              "pick another name or clone it", "field": "name"})
     return key

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from laplab.console.events import EventHub
+from laplab.console.outcomes import INTERRUPTED_BY_SHUTDOWN, TRAIN_KINDS, death_reason, time_left_s  # noqa: F401
 from laplab.jobs.db import ACTIVE_STATUSES, Job, JobStore, User
 from laplab.jobs.runner import JobRunner, job_folder, models_dir
 from laplab.store.layout import ModelFolder, list_models
@@ -27,7 +28,6 @@ TICK_S = 1.0 / 30.0
 LIST_TTL_S = 0.25
 QUEUE_CHECK_S = 1.0  # the scheduler reads the queue at least this often while a worker is free
 CREDENTIALS_CHECK_S = 0.5  # how soon `laplab users revoke / disable / remove` takes effect in a running server
-TRAIN_KINDS = ("train", "clone", "resume")
 MODEL_STATUS = {"queued": "queued", "running": "training", "stopping": "stopping", "done": "ready",
                 "failed": "failed", "interrupted": "interrupted"}
 
@@ -137,7 +137,7 @@ class ConsoleService:
         key = model_key(user, name)
         if key in owners and (user.is_admin or owners[key] == user.id):
             return key
-        if user.is_admin and name in owners:
+        if name in owners and (user.is_admin or owners[name] == user.id):  # the admin; a model from before per-user names
             return name
         return None
 
@@ -362,7 +362,7 @@ class ConsoleService:
             status, error = "interrupted", INTERRUPTED_BY_SHUTDOWN
         elif status not in ("done", "failed"):
             status = "failed"
-            error = error or _death_reason(job, returncode, getattr(self.runner, "limits", None))
+            error = error or death_reason(job, returncode, getattr(self.runner, "limits", None))
         self.store.update_job(job_id, status=status, finished=time.time(), error=error, result=result or None,
                               progress=100.0 if status == "done" else job.progress)
         self._event_offsets.pop(job_id, None)
@@ -372,25 +372,6 @@ class ConsoleService:
             target.rmdir()  # validation failed before anything was written
         model_status = MODEL_STATUS[status] if job.kind in TRAIN_KINDS else status
         self._publish_status(job.model, job_id, model_status, kind=job.kind, error=error)
-
-
-INTERRUPTED_BY_SHUTDOWN = ("the server stopped while this job ran; it kept its last checkpoint: resume it to "
-                           "continue with the time it had left")
-
-
-def time_left_s(job: Job) -> float | None:
-    """What an interrupted training job had left of its max time at its last checkpoint (the trainer's
-    ``time_left_s`` of its last iteration; its whole budget before its first), or None when unknown."""
-    budget = job.params.get("max_time_s")
-    left = float(budget) if budget else None
-    try:
-        with open(job_folder(job.id) / "events.jsonl", encoding="utf-8", errors="replace") as events:
-            for line in events:
-                if line.startswith('{"type": "iteration"'):
-                    left = float(json.loads(line)["report"]["time_left_s"])
-    except (OSError, ValueError, KeyError, TypeError):
-        pass
-    return left
 
 
 def _best_with_evaluations(folder: ModelFolder, best: float | None) -> float | None:
@@ -407,40 +388,6 @@ def _best_with_evaluations(folder: ModelFolder, best: float | None) -> float | N
         if lap is not None:
             best = lap if best is None else min(best, lap)
     return best
-
-
-def _death_reason(job: Job, returncode: int, limits) -> str:
-    """The paragraph of the CLI's supervisor (:func:`laplab.jobs.diagnosis.describe_death`) for a job
-    that ended without writing its result: how it died, its last iteration, the reward function's line
-    from the job's crash log; no server paths."""
-    import re
-    import signal
-
-    from laplab.jobs.confinement import JobLimits
-    from laplab.jobs.diagnosis import describe_death
-    from laplab.jobs.runner import CRASH_LOG
-    folder = job_folder(job.id)
-    number = -returncode if returncode < 0 else returncode - 128 if 128 < returncode < 160 else None
-    if number is not None and number not in signal.Signals._value2member_map_:
-        number = None
-    iteration = None
-    try:
-        for line in (folder / "events.jsonl").read_text(errors="replace").splitlines():
-            if '"iteration"' in line and '"report"' in line:
-                iteration = json.loads(line)["report"].get("iteration", iteration)
-    except (OSError, ValueError, KeyError):
-        pass
-    try:
-        crash = (folder / CRASH_LOG).read_text(errors="replace")
-    except OSError:
-        crash = ""
-    reports = {"model": job.model, "what": "training job" if job.kind in TRAIN_KINDS else f"{job.kind} job"}
-    if iteration is not None:
-        reports["iteration"] = iteration
-    message = describe_death(reports, None if number is not None else returncode, number, crash,
-                             limits or JobLimits.console(), None, "job")
-    message = re.sub(r"\S*/reward_function\.py", "reward_function.py", message)
-    return message.replace(" (--cpu-limit)", "") + " The model keeps its last checkpoint."
 
 
 def default_workers() -> int:
