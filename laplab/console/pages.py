@@ -170,6 +170,14 @@ def report_file(name: str, file: str, request: Request, user: User = Depends(cur
     return FileResponse(target, headers={"Cache-Control": "no-store"})
 
 
+@router.get("/users", response_class=HTMLResponse)
+def users_page(request: Request, user: User = Depends(current_user)):
+    """The admin's accounts page (over ``/api/users``)."""
+    if not user.is_admin:
+        raise HTTPException(403, {"message": "only the admin manages accounts"})
+    return _page(request, "users.html", user, title="Accounts")
+
+
 @router.get("/leaderboard", response_class=HTMLResponse)
 def leaderboard_page(request: Request, user: User = Depends(current_user)):
     return _page(request, "leaderboard.html", user, title="Leaderboard")
