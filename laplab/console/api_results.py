@@ -219,8 +219,9 @@ async def leaderboard_route(request: Request, track: str | None = None, user: Us
                 continue
             seen.add(owner)
             row = {**entry.to_dict(), "rank": len(rows) + 1, "user": names.get(owner)}
-            if "model" in row:  # as its owner names it (the admin: its key, to open it)
-                row["model"] = service.handle(entry.model, owner, None if owner == user.id or not user.is_admin else user)
+            # the model's name only for its owner (as they name it) and the admin (its key, to open it): names
+            # never reveal another user's models; the racer's name and times are the leaderboard
+            row["model"] = (service.handle(entry.model, owner, user) if user.is_admin or owner == user.id else None)
             rows.append(row)
         out.append({"track": board_track, "entries": rows})
     return out
