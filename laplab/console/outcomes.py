@@ -4,6 +4,7 @@ and what an interrupted training had left of its max time (for its resume)."""
 from __future__ import annotations
 
 import json
+import re
 
 from laplab.jobs.db import Job
 from laplab.jobs.runner import job_folder
@@ -33,7 +34,6 @@ def death_reason(job: Job, returncode: int, limits) -> str:
     """The paragraph of the CLI's supervisor (:func:`laplab.jobs.diagnosis.describe_death`) for a job
     that ended without writing its result: how it died, its last iteration, the reward function's line
     from the job's crash log; no server paths."""
-    import re
     import signal
 
     from laplab.jobs.confinement import JobLimits
@@ -59,5 +59,14 @@ def death_reason(job: Job, returncode: int, limits) -> str:
         reports["iteration"] = iteration
     message = describe_death(reports, None if number is not None else returncode, number, crash,
                              limits or JobLimits.console(), None, "job")
-    message = re.sub(r"\S*/reward_function\.py", "reward_function.py", message)
     return message.replace(" (--cpu-limit)", "") + " The model keeps its last checkpoint."
+
+
+def without_paths(message: str | None) -> str | None:
+    """A job's error as its page shows it: the reward function named ``reward_function.py`` (not the
+    sandbox's or the server's path to it), the console's folder as ``$LAPLAB_HOME``."""
+    if not message:
+        return message
+    from laplab.jobs.db import laplab_home
+    message = re.sub(r"[^\s'\"(]*/reward_function\.py", "reward_function.py", message)
+    return message.replace(str(laplab_home()), "$LAPLAB_HOME")

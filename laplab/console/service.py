@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from laplab.console.events import EventHub
-from laplab.console.outcomes import INTERRUPTED_BY_SHUTDOWN, TRAIN_KINDS, death_reason, time_left_s  # noqa: F401
+from laplab.console.outcomes import (INTERRUPTED_BY_SHUTDOWN, TRAIN_KINDS, death_reason, time_left_s,  # noqa: F401
+                                     without_paths)
 from laplab.jobs.db import ACTIVE_STATUSES, Job, JobStore, User
 from laplab.jobs.runner import JobRunner, job_folder, models_dir
 from laplab.store.layout import ModelFolder, list_models
@@ -172,6 +173,7 @@ class ConsoleService:
                            algorithm=meta.get("training_algorithm", "clipped_ppo"), max_time_s=job.params.get("max_time_s"))
         if job is not None and job.error and status in ("failed", "interrupted"):
             summary["error"] = summary.get("error") or job.error
+        summary["error"] = without_paths(summary.get("error"))
         if summary["created"] is None and record is not None:
             summary["created"] = _iso(record["created"])
         return summary
@@ -363,6 +365,7 @@ class ConsoleService:
         elif status not in ("done", "failed"):
             status = "failed"
             error = error or death_reason(job, returncode, getattr(self.runner, "limits", None))
+        error = without_paths(error)
         self.store.update_job(job_id, status=status, finished=time.time(), error=error, result=result or None,
                               progress=100.0 if status == "done" else job.progress)
         self._event_offsets.pop(job_id, None)

@@ -45,10 +45,13 @@ def test_a_sleeping_reward_is_stopped_by_the_step_watchdog_and_os_exit_is_caught
         error = sleeper["error"]
         assert "wall-clock" not in error and "3 s" in error and "line 6" in error, error
         assert "Traceback" not in error
+        # no paths of the server or of the sandbox
+        assert str(tmp_path) not in error and "/tmp/laplab" not in error and "reward_function.py" in error
 
         quitter = console.wait_for(console.admin, "quitter", ("failed", "ready"), timeout_s=240)
         assert quitter["status"] == "failed", quitter
         assert "os._exit(3)" in quitter["error"] and "line 8" in quitter["error"], quitter["error"]
+        assert str(tmp_path) not in quitter["error"] and "/tmp/laplab" not in quitter["error"]
         job_log = (tmp_path / "jobs" / str(quitter["job"]["id"]) / "log.txt").read_text()
         shown = job_log.count("reward call")
         assert 0 < shown <= 21, shown  # the cap (the notice line counts no call)
