@@ -34,7 +34,9 @@ def _store_call(request: Request, change):
         answer = change()
     except StoreError as exc:
         raise HTTPException(404 if str(exc).startswith("no user named") else 409, {"message": str(exc)}) from None
-    request.app.state.service.models_changed()  # owners and names may have changed
+    service = request.app.state.service
+    service.models_changed()  # owners and names may have changed
+    service.stop_jobs_of_absent_users()
     return answer
 
 

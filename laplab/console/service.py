@@ -266,6 +266,12 @@ class ConsoleService:
         self._publish_status(job.model, job.id, "stopping")
         self.runner.stop(job)
 
+    def stop_jobs_of_absent_users(self) -> None:
+        """Stop the queued and running jobs of users disabled or removed (each keeps its model)."""
+        for job in self.store.jobs(status=("queued", "running")):
+            if self.store.user_by_id(job.owner) is None:
+                self.stop(job)
+
     def _publish_status(self, model: str, job_id: int, status: str, **extra) -> None:
         self.models_changed()
         self.hub.publish(model, "status", {"status": status, "job": job_id, **extra})
@@ -276,6 +282,7 @@ class ConsoleService:
             self._credentials_checked = time.monotonic()
             if self.store.credentials_changed():
                 self.models_changed()
+                self.stop_jobs_of_absent_users()
         for finished in self.runner.poll():
             self._finish(finished.job_id, finished.returncode, finished.error)
         running = self.store.jobs(status=("running", "stopping"))

@@ -290,7 +290,8 @@ class JobStore:
 
     def remove_user(self, name: str) -> int:
         """Remove ``name``: their tokens and sessions end, their models pass to the (first other) admin;
-        nothing is deleted. Returns how many models passed."""
+        nothing is deleted (their jobs keep their owner id: the console stops those still active).
+        Returns how many models passed."""
         row = self._existing(name)
         heirs = self._rows("SELECT id FROM users WHERE is_admin=1 AND id!=? ORDER BY disabled, id LIMIT 1", (row["id"],))
         if not heirs:
@@ -299,7 +300,6 @@ class JobStore:
             self._execute("DELETE FROM tokens WHERE user_id=?", (row["id"],))
             self._execute("DELETE FROM sessions WHERE user_id=?", (row["id"],))
             moved = self._execute("UPDATE models SET owner=? WHERE owner=?", (heirs[0]["id"], row["id"])).rowcount
-            self._execute("UPDATE jobs SET owner=? WHERE owner=?", (heirs[0]["id"], row["id"]))
             self._execute("DELETE FROM users WHERE id=?", (row["id"],))
         self.forget_credentials()
         return moved

@@ -110,3 +110,16 @@ def test_the_admin_manages_accounts_from_the_console(accounts):
     assert accounts.admin.delete("/api/users/erin").status_code == 200
     assert accounts.client(fresh).get("/api/me").status_code == 401
     assert accounts.admin.delete("/api/users/nobody").status_code == 404
+
+
+def test_disabling_a_user_stops_their_jobs(accounts):
+    _, token = accounts.app.state.store.add_user("busy")
+    busy = accounts.client(token)
+    created = busy.post("/api/models", json={"name": "long-one", "max_time_s": 600,
+                                             "hyperparameters": {"num_episodes_between_training": 2}})
+    assert created.status_code == 201, created.text
+    job_id = created.json()["job"]["id"]
+    _users(accounts.home, "disable", "busy")
+    store = accounts.app.state.store
+    _until(lambda: store.job(job_id).status not in ("queued", "running"), timeout_s=10)
+    _until(lambda: store.job(job_id).status not in ("stopping",), timeout_s=120)  # it stops, keeping its model
