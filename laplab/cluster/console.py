@@ -113,10 +113,12 @@ def job_worker_count(requested: int | None, cluster: RayCluster | None, episodes
     return requested
 
 
-def start_job_workers(trainer, cluster: dict, workers: int, say: Callable[[str], None] = print):
+def start_job_workers(trainer, cluster: dict, workers: int, say: Callable[[str], None] = print, watch=None):
     """A console job's rollout workers on ``cluster`` (the job spec's ``cluster``: address, workers):
-    restarts go to ``say`` (the job log) and the model folder's ``logs/workers.log``. Returns the
-    collector (close it when the job ends)."""
+    restarts go to ``say`` (the job log) and the model folder's ``logs/workers.log``; ``watch`` (a
+    :class:`laplab.reward.watchdog.WatchdogLimits`) limits their reward calls as the job's own. Returns
+    the collector (close it when the job ends)."""
     from laplab.cluster.launch import attach_workers, logged_notify
     say(f"starting {workers} rollout worker{'s' if workers > 1 else ''} on the Ray cluster at {cluster['address']}")
-    return attach_workers(trainer, workers, cluster["address"], logged_notify(trainer, say))
+    timeouts = () if watch is None else (watch.timeout_s, watch.wait_timeout_s)
+    return attach_workers(trainer, workers, cluster["address"], logged_notify(trainer, say), *timeouts)

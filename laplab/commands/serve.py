@@ -19,6 +19,11 @@ def register(subparsers) -> None:
     parser.add_argument("--job-wall-margin", type=float, default=600.0, metavar="SECONDS",
                         help="wall-clock seconds a job may run past its own budget (a training's max time, an "
                              "evaluation's trials x max trial time) before the server ends it (default 600)")
+    parser.add_argument("--max-job-time", default="24h", metavar="DURATION",
+                        help="the longest training a user may ask for (e.g. 90m, 24h; default 24h, as DeepRacer "
+                             "on AWS's 1440 minutes): a longer max time is refused")
+    parser.add_argument("--max-upload", default="1G", metavar="SIZE",
+                        help="the largest archive `Import` accepts (default 1G); other requests take at most 1 MiB")
     parser.add_argument("--ray-address", default=None, metavar="ADDR",
                         help="run the rollout workers of training jobs on the Ray cluster at ADDR; sandboxed jobs "
                              "join through Ray Client, ray://HEAD:10001. Those jobs keep the network (no other "
@@ -28,6 +33,11 @@ def register(subparsers) -> None:
     parser.add_argument("--rollout-workers", type=int, default=None, metavar="N",
                         help="with --ray-address: rollout workers per training job, as deepracer-for-cloud's "
                              "DR_WORKERS (default 2; a request's `workers` may ask for fewer)")
+    parser.add_argument("--no-sandbox", action="store_true",
+                        help="run jobs without bubblewrap and still let users other than the admin in: every "
+                             "user's reward function then runs as the server's user and can read the database, the "
+                             "secret key and other users' models (a banner on every page says so). Without this "
+                             "flag a console whose sandbox is missing serves only its admin")
     parser.add_argument("--no-accounts", action="store_true",
                         help="everyone is the admin, no login (only with a loopback --host)")
     parser.set_defaults(func=run)
@@ -60,9 +70,18 @@ def run(args: argparse.Namespace) -> int:
     if not (args.job_wall_margin > 0 and math.isfinite(args.job_wall_margin)):
         raise UserError(f"--job-wall-margin must be a positive number of seconds, got {args.job_wall_margin}")
     from laplab.jobs.confinement import JobLimits
+    from laplab.jobs.supervisor import parse_memory_limit
+    from laplab.train.config import ConfigError, parse_duration
+    try:
+        max_time = parse_duration(args.max_job_time)
+        max_upload = parse_memory_limit(args.max_upload)
+    except (ConfigError, ValueError) as exc:
+        raise UserError(f"--max-job-time / --max-upload: {exc}") from None
     cluster, warnings = _cluster(args)
-    app = create_app(args.workers, open_access=args.no_accounts, limits=JobLimits(wall_margin_s=args.job_wall_margin),
-                     cluster=cluster)
+    limits = JobLimits.console(wall_margin_s=args.job_wall_margin, max_time_s=max_time)
+    app = create_app(args.workers, open_access=args.no_accounts, limits=limits, cluster=cluster,
+                     sandbox=False if args.no_sandbox else None, allow_unsandboxed=args.no_sandbox,
+                     max_upload_bytes=max_upload or (1 << 40))
     store, service = app.state.store, app.state.service
     admin = store.admin()
     token = app.state.first_token
@@ -70,7 +89,11 @@ def run(args: argparse.Namespace) -> int:
         token = store.add_token(admin.id, "serve-link", lifetime_s=24 * 3600.0)
     shown = "127.0.0.1" if args.host in ("0.0.0.0", "::") else args.host
     url = f"http://{shown}:{args.port}/"
-    print(f"laplab console: {service.workers} job worker(s), jobs {'sandboxed with bubblewrap' if app.state.sandbox else 'NOT sandboxed (bubblewrap missing): limits and a clean environment only'}")
+    from laplab.console.safety import NO_SANDBOX_BANNER, NO_SANDBOX_REFUSAL
+    print(f"laplab console: {service.workers} job worker(s), jobs "
+          f"{'sandboxed with bubblewrap' if app.state.sandbox else 'NOT sandboxed: limits and a clean environment only'}")
+    if not app.state.sandbox:
+        print(f"warning: {NO_SANDBOX_BANNER if args.no_sandbox else NO_SANDBOX_REFUSAL}", flush=True)
     if cluster is not None:
         print(f"training jobs run {cluster.workers} rollout worker(s) each on the Ray cluster at {cluster.address} "
               "(their jobs keep the network)")

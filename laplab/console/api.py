@@ -103,10 +103,13 @@ def _field_of(exc: BaseException) -> str | None:
 _REQUEST_FIELDS = ("hyperparameters", "model_metadata", "name", "track", "physics")
 
 
-def own_model(request: Request, name: str, user: User) -> None:
-    """404 unless ``name`` exists and ``user`` may see it (other users' models do not exist for you)."""
-    if not _service(request).can_see(user, name):
+def own_model(request: Request, name: str, user: User) -> str:
+    """The key (folder name) of the model ``user`` calls ``name``; 404 unless it exists and ``user``
+    may see it (other users' models do not exist for you: model names are per user)."""
+    key = _service(request).resolve(user, name)
+    if key is None:
         raise HTTPException(404, f"no model named {name!r} among your models")
+    return key
 
 
 def check_track_name(track: str | None) -> None:
@@ -158,15 +161,32 @@ async def _validate_reward(request: Request, user: User, source: str, track: str
                                    request.app.state.sandbox)
 
 
-def _name_free(request: Request, name: str) -> None:
+def check_max_time(request: Request, max_time_s: float | None) -> None:
+    """400 naming ``max_time_s`` for a training longer than this console allows."""
+    from laplab.console.limits import check_max_time as over_cap
+    message = over_cap(max_time_s, request.app.state.limits.max_time_s)
+    if message:
+        raise bad_request(message, "max_time_s")
+
+
+def _name_free(request: Request, name: str, user: User) -> str:
+    """The key of ``user``'s new model ``name``: a 400 for a bad name, a 409 when ``user`` has a model
+    of that name (names are per user: another user's models are never looked at, nor named)."""
+    from laplab.console.service import model_key
     from laplab.store.layout import ModelNameError, validate_model_name
+    key = model_key(user, name)
     try:
         validate_model_name(name)
+        if key != name and len(key) > 64:
+            raise ModelNameError(f"invalid model name {name!r}: at most {64 - len(key) + len(name)} characters "
+                                 "on this console")
     except ModelNameError as exc:
         raise bad_request(str(exc), "name") from None
-    if name in _service(request).owners() or (models_dir() / name).exists():
-        raise HTTPException(409, {"message": f"a model named {name!r} already exists; models are immutable: "
+    owners = _service(request).owners()
+    if key in owners or (models_dir() / key).exists() or owners.get(name) == user.id:
+        raise HTTPException(409, {"message": f"you already have a model named {name!r}; models are immutable: "
                                              "pick another name or clone it", "field": "name"})
+    return key
 
 
 @router.get("/health", tags=["console"])
@@ -206,25 +226,27 @@ async def _refresh_list(service, user: User) -> None:
         service.list_refreshed(user)
 
 
-async def _validate_and_claim(request: Request, user: User, body: CloneModel, reward_source: str | None,
+async def _validate_and_claim(request: Request, user: User, key: str, body: CloneModel, reward_source: str | None,
                               track: str | None, model_metadata: dict | None) -> None:
     """Run the validation sweep on ``reward_source`` (None: the default reward, nothing to check; a
-    failure is a 400 naming its line), then claim ``body.name`` for ``user`` (409 when taken)."""
+    failure is a 400 naming its line), then claim ``key`` (``body.name``) for ``user`` (409 when taken)."""
     if reward_source is not None:
         answer = await _validate_reward(request, user, reward_source, track, model_metadata)
         if not answer["ok"]:
             first = answer["errors"][0]
             raise bad_request(first["message"], "reward_function", line=first.get("line"), errors=answer["errors"])
     try:
-        _service(request).store.claim_model(body.name, user.id, body.description)
-    except StoreError as exc:
-        raise HTTPException(409, {"message": str(exc), "field": "name"}) from None
+        _service(request).store.claim_model(key, user.id, body.description)
+    except StoreError:
+        raise HTTPException(409, {"message": f"you already have a model named {body.name!r}; models are immutable: "
+                                             "pick another name or clone it", "field": "name"}) from None
 
 
 @router.post("/models", status_code=201)
 async def create_model(body: CreateModel, request: Request, user: User = Depends(current_user)) -> dict:
     service = _service(request)
-    _name_free(request, body.name)
+    check_max_time(request, body.max_time_s)
+    key = _name_free(request, body.name, user)
     values = {"track": body.track, "model_metadata": body.model_metadata, "hyperparameters": body.hyperparameters,
               "max_time_s": body.max_time_s, "max_episodes": body.max_episodes, "seed": body.seed}
     if body.physics:
@@ -235,17 +257,17 @@ async def create_model(body: CreateModel, request: Request, user: User = Depends
             raise bad_request(str(exc).replace("--physics", "physics"), "physics") from None
     config = _check_train_inputs(values)
     workers = _job_workers(request, body.workers, config.hyper().num_episodes_between_training)
-    await _validate_and_claim(request, user, body, body.reward_function, body.track, body.model_metadata)
-    job = service.submit("train", body.name, user.id, {**{k: v for k, v in values.items() if v is not None}, **workers},
+    await _validate_and_claim(request, user, key, body, body.reward_function, body.track, body.model_metadata)
+    job = service.submit("train", key, user.id, {**{k: v for k, v in values.items() if v is not None}, **workers},
                          reward_source=body.reward_function)
-    return {**service.describe(body.name), "job": job.to_dict()}
+    return {**service.describe(key, viewer=user), "job": job.to_dict()}
 
 
 @router.get("/models/{name}")
 def get_model(name: str, request: Request, user: User = Depends(current_user)) -> dict:
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     service = _service(request)
-    model = service.describe(name)
+    model = service.describe(name, viewer=user)
     model["iterations"] = service.catalog.iterations(name)
     model["evaluation_jobs"] = [j.to_dict() for j in service.store.jobs(model=name, kind=("evaluate",))]
     from laplab.console.api_exports import export_view
@@ -276,18 +298,18 @@ def _worker_rows(folder, status: str, iterations: list[dict]) -> list[dict]:
 
 @router.post("/models/{name}/stop")
 def stop_model(name: str, request: Request, user: User = Depends(current_user)) -> dict:
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     service = _service(request)
     job = service.active_job(name)
     if job is None or job.kind == "evaluate":
         raise HTTPException(409, f"{name!r} is not training")
     service.stop(job)
-    return service.describe(name)
+    return service.describe(name, viewer=user)
 
 
 @router.post("/models/{name}/resume", status_code=202)
 def resume_model(name: str, request: Request, body: Resume | None = None, user: User = Depends(current_user)) -> dict:
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     service = _service(request)
     if service.active_job(name) is not None:
         raise HTTPException(409, f"{name!r} already has a job queued or running")
@@ -296,25 +318,44 @@ def resume_model(name: str, request: Request, body: Resume | None = None, user: 
     max_time = body.max_time_s if body and body.max_time_s else None
     if max_time is not None and not (math.isfinite(max_time) and max_time > 0):
         raise bad_request(f"max time must be a positive number of seconds, got {max_time!r}", "max_time_s")
+    check_max_time(request, max_time)
     saved = json.loads((models_dir() / name / "laplab.json").read_text())
-    if max_time is None:  # the saved budget, named in the job so that its wall-clock limit follows from it
-        max_time = saved.get("max_time_s")
+    if max_time is None:
+        max_time = _default_resume_time(request, name, saved)
     episodes = (saved.get("hyperparameters") or {}).get("num_episodes_between_training") or 20
     workers = _job_workers(request, body.workers if body else None, episodes)
     owner = service.owners()[name]
     job = service.submit("resume", name, owner, {**({"max_time_s": max_time} if max_time else {}), **workers})
-    return {**service.describe(name), "job": job.to_dict()}
+    return {**service.describe(name, viewer=user), "job": job.to_dict()}
+
+
+def _default_resume_time(request: Request, name: str, saved: dict) -> float | None:
+    """A resume's budget when the request names none: after an interruption (a server stop, a crash
+    of the server) only the time the interrupted job had left; else the saved max time. Capped by the
+    console's limit, and named in the job so that its wall-clock limit follows from it."""
+    from laplab.console.service import TRAIN_KINDS, time_left_s
+    jobs = _service(request).store.jobs(model=name, kind=TRAIN_KINDS)
+    if jobs and jobs[-1].status == "interrupted":
+        left = time_left_s(jobs[-1])
+        if left is not None and left < 1.0:
+            raise HTTPException(409, {"message": f"{name!r} had used its whole max time when it was interrupted: "
+                                                 "name a new max_time_s to train it further", "field": "max_time_s"})
+        if left is not None:
+            return min(left, request.app.state.limits.max_time_s)
+    budget = saved.get("max_time_s")
+    return None if budget is None else min(float(budget), request.app.state.limits.max_time_s)
 
 
 @router.post("/models/{name}/clone", status_code=201)
 async def clone_model(name: str, body: CloneModel, request: Request, user: User = Depends(current_user)) -> dict:
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     service = _service(request)
     if service.active_job(name) is not None:
         raise HTTPException(409, f"{name!r} is training: clone it when its training has ended")
     if not (models_dir() / name / "laplab.json").exists():
         raise HTTPException(409, f"{name!r} has no laplab training configuration to clone from")
-    _name_free(request, body.name)
+    check_max_time(request, body.max_time_s)
+    key = _name_free(request, body.name, user)
     source_config = json.loads((models_dir() / name / "laplab.json").read_text())
     if body.model_metadata is not None:
         from laplab.env.metadata import metadata_from_dict
@@ -335,17 +376,17 @@ async def clone_model(name: str, body: CloneModel, request: Request, user: User 
     source = body.reward_function
     if source is None:
         source = (models_dir() / name / "reward_function.py").read_text()
-    await _validate_and_claim(request, user, body, source, values["track"], values["model_metadata"])
+    await _validate_and_claim(request, user, key, body, source, values["track"], values["model_metadata"])
     params = {k: v for k, v in values.items() if v is not None and k != "model_metadata"}
-    job = service.submit("clone", body.name, user.id, {**params, **workers, "source": name}, reward_source=source)
-    return {**service.describe(body.name), "job": job.to_dict()}
+    job = service.submit("clone", key, user.id, {**params, **workers, "source": name}, reward_source=source)
+    return {**service.describe(key, viewer=user), "job": job.to_dict()}
 
 
 @router.delete("/models/{name}")
 def delete_model(name: str, request: Request, user: User = Depends(current_user)) -> dict:
-    own_model(request, name, user)
+    shown, name = name, own_model(request, name, user)
     service = _service(request)
     if service.active_job(name) is not None:
-        raise HTTPException(409, f"{name!r} has a job queued or running: stop it before deleting the model")
+        raise HTTPException(409, f"{shown!r} has a job queued or running: stop it before deleting the model")
     service.delete_model(name)
-    return {"deleted": name}
+    return {"deleted": shown}

@@ -67,7 +67,7 @@ def _export_job(request: Request, name: str, job_id: int) -> Job:
 
 @router.post("/models/{name}/exports", status_code=202)
 def start_export(name: str, body: Export, request: Request, user: User = Depends(current_user)) -> dict:
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     service = _service(request)
     missing = tensorflow_missing()
     if missing:
@@ -83,19 +83,19 @@ def start_export(name: str, body: Export, request: Request, user: User = Depends
 
 @router.get("/models/{name}/exports")
 def list_exports(name: str, request: Request, user: User = Depends(current_user)) -> list[dict]:
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     return [export_view(j) for j in _service(request).store.jobs(model=name, kind=("export",))]
 
 
 @router.get("/models/{name}/exports/{job_id}")
 def get_export(name: str, job_id: int, request: Request, user: User = Depends(current_user)) -> dict:
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     return export_view(_export_job(request, name, job_id))
 
 
 @router.get("/models/{name}/exports/{job_id}/file")
 def get_export_file(name: str, job_id: int, request: Request, user: User = Depends(current_user)):
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     return export_file(_export_job(request, name, job_id))
 
 

@@ -27,7 +27,7 @@ KEEP_ALIVE_S = 15.0
 
 @router.post("/models/{name}/evaluations", status_code=202)
 def start_evaluation(name: str, body: Evaluate, request: Request, user: User = Depends(current_user)) -> dict:
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     service = _service(request)
     from laplab.evaluate.trials import EvaluationError, EvaluationSettings
     check_track_name(body.track)
@@ -67,13 +67,13 @@ def _evaluation(job) -> dict:
 
 @router.get("/models/{name}/evaluations")
 def list_evaluations(name: str, request: Request, user: User = Depends(current_user)) -> list[dict]:
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     return [_evaluation(j) for j in _service(request).store.jobs(model=name, kind=("evaluate",))]
 
 
 @router.get("/models/{name}/evaluations/{job_id}")
 def get_evaluation(name: str, job_id: int, request: Request, user: User = Depends(current_user)) -> dict:
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     job = _service(request).store.job(job_id)
     if job is None or job.model != name or job.kind != "evaluate":
         raise HTTPException(404, f"no evaluation {job_id} of {name!r}")
@@ -82,7 +82,7 @@ def get_evaluation(name: str, job_id: int, request: Request, user: User = Depend
 
 @router.get("/models/{name}/video/{stamp}")
 def evaluation_video(name: str, stamp: str, request: Request, user: User = Depends(current_user)):
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     from laplab.store.layout import ModelFolder
     try:
         folder = ModelFolder(models_dir() / name).evaluation_dir(stamp)
@@ -98,7 +98,7 @@ def evaluation_video(name: str, stamp: str, request: Request, user: User = Depen
 async def model_events(name: str, request: Request, user: User = Depends(current_user)) -> StreamingResponse:
     """Server-sent events: ``status`` on each status change, ``iteration`` per training iteration,
     ``poses`` (the cars on the track) up to 15 times a second while a job drives."""
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     service = _service(request)
     stream = service.hub.stream(name)
 
@@ -146,7 +146,7 @@ async def download(name: str, request: Request, format: str = Query("tar", patte
                    user: User = Depends(current_user)):
     """``tar`` (laplab's archive) and ``onnx`` are made on the spot; ``car`` and ``console`` (TensorFlow)
     are built by export jobs (see :mod:`laplab.console.api_exports`): this serves the newest one."""
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     if format in ("car", "console"):
         from laplab.console.api_exports import latest_export
         return latest_export(request, name, format)
@@ -166,11 +166,22 @@ async def import_model(request: Request, file: UploadFile = File(...), name: str
                        user: User = Depends(current_user)) -> dict:
     service = _service(request)
     try:
-        imported = await run_in_threadpool(exports.import_archive, file.file, name, service, user)
+        imported = await run_in_threadpool(exports.import_archive, file.file, name or _stem(file.filename), service, user)
     except exports.ExportError as exc:
         raise bad_request(str(exc), "file") from None
     service.models_changed()
-    return service.describe(imported)
+    return service.describe(imported, viewer=user)
+
+
+def _stem(filename: str | None) -> str | None:
+    """``my-model.tar.gz`` -> ``my-model``: an import's name when the form names none (names are per
+    user, so the name is needed before the archive is read)."""
+    if not filename:
+        return None
+    stem = filename.rsplit("/", 1)[-1]
+    for suffix in (".tar.gz", ".tgz", ".tar"):
+        stem = stem.removesuffix(suffix)
+    return stem or None
 
 
 @router.post("/reward/validate")
@@ -207,7 +218,11 @@ async def leaderboard_route(request: Request, track: str | None = None, user: Us
             if owner is None or owner in seen:
                 continue
             seen.add(owner)
-            rows.append({**entry.to_dict(), "rank": len(rows) + 1, "user": names.get(owner)})
+            row = {**entry.to_dict(), "rank": len(rows) + 1, "user": names.get(owner)}
+            # the model's name only for its owner (as they name it) and the admin (its key, to open it): names
+            # never reveal another user's models; the racer's name and times are the leaderboard
+            row["model"] = (service.handle(entry.model, owner, user) if user.is_admin or owner == user.id else None)
+            rows.append(row)
         out.append({"track": board_track, "entries": rows})
     return out
 
@@ -240,7 +255,7 @@ async def track_picture(name: str, user: User = Depends(current_user)):
 @router.get("/models/{name}/camera.png")
 def camera_png(name: str, request: Request, user: User = Depends(current_user)):
     """The newest camera frame of a camera model's running (or last) training job."""
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     for job in reversed(_service(request).store.jobs(model=name)):
         path = job_folder(job.id) / "camera.png"
         if path.exists():
@@ -250,7 +265,7 @@ def camera_png(name: str, request: Request, user: User = Depends(current_user)):
 
 @router.get("/models/{name}/log")
 def job_log(name: str, request: Request, user: User = Depends(current_user)) -> dict:
-    own_model(request, name, user)
+    name = own_model(request, name, user)
     jobs = _service(request).store.jobs(model=name)
     if not jobs:
         return {"log": ""}

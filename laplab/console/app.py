@@ -15,6 +15,7 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from laplab.console.auth import current_user, load_secret
+from laplab.console.limits import BodyLimit, LoginThrottle
 from laplab.console.service import ConsoleService, default_workers, threads_per_job
 from laplab.jobs.db import JobStore, User, laplab_home
 from laplab.jobs.runner import LocalProcessRunner
@@ -34,12 +35,17 @@ def ensure_admin(store: JobStore) -> str | None:
 
 
 def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_access: bool = False,
-               limits: JobLimits = JobLimits(), tick_s: float | None = None, warm_cache: bool = True,
-               cluster=None) -> FastAPI:
+               limits: JobLimits | None = None, tick_s: float | None = None, warm_cache: bool = True,
+               cluster=None, allow_unsandboxed: bool = False, max_body_bytes: int = 1 << 20,
+               max_upload_bytes: int = 1 << 30) -> FastAPI:
     """The console app over ``$LAPLAB_HOME`` (database, secret key, model folders); ``warm_cache``
     compiles numba's kernels once in the background for new users' jobs (:mod:`laplab.jobs.warmup`);
-    ``cluster`` (a :class:`laplab.cluster.console.RayCluster`) runs training jobs' rollout workers on Ray."""
-    from laplab.console import api, api_exports, api_results, pages
+    ``cluster`` (a :class:`laplab.cluster.console.RayCluster`) runs training jobs' rollout workers on Ray;
+    ``allow_unsandboxed`` (``laplab serve --no-sandbox``) lets users other than the admin in when jobs
+    run without bubblewrap (:mod:`laplab.console.safety`); ``max_body_bytes`` / ``max_upload_bytes``:
+    the largest request body (import: upload) accepted, and ``limits.max_time_s`` the longest training
+    (:mod:`laplab.console.limits`)."""
+    from laplab.console import api, api_exports, api_results, api_users, pages
     from laplab.console.service import TICK_S
 
     home = laplab_home()
@@ -47,6 +53,7 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
     store = JobStore()
     first_token = ensure_admin(store)
     workers = workers or default_workers()
+    limits = limits if limits is not None else JobLimits.console()
     runner = LocalProcessRunner(limits, sandbox=sandbox, cluster=cluster, threads_per_job=threads_per_job(workers))
     service = ConsoleService(store, runner, workers)
     interval = tick_s or TICK_S
@@ -68,18 +75,22 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
             yield
         finally:
             task.cancel()
+            service.server_stopping = True  # jobs stopped now become `interrupted`, resumable with their time left
             if warmup is not None and warmup.poll() is None:
                 warmup.kill()
                 warmup.wait()
             await asyncio.get_running_loop().run_in_executor(None, runner.shutdown)
             service.tick()
-            store.interrupt_running()
+            store.interrupt_running()  # any the runner could not reap
 
     app = FastAPI(title="laplab console", version="1", lifespan=lifespan, openapi_url=None, docs_url=None,
                   redoc_url=None,
                   description="DeepRacer's console on laplab: models, training jobs, evaluations, leaderboard.")
     app.state.store, app.state.service, app.state.secret = store, service, load_secret(home)
     app.state.open_access, app.state.sandbox = open_access, runner.sandbox
+    app.state.allow_unsandboxed = bool(allow_unsandboxed)
+    app.state.limits, app.state.login_throttle = limits, LoginThrottle()
+    app.add_middleware(BodyLimit, json_bytes=max_body_bytes, upload_bytes=max_upload_bytes)
     app.state.cluster = cluster
     app.state.first_token = first_token
 
@@ -111,5 +122,6 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
     app.include_router(api.router)
     app.include_router(api_results.router)
     app.include_router(api_exports.router)
+    app.include_router(api_users.router)
     app.include_router(pages.router)
     return app

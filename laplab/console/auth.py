@@ -46,12 +46,31 @@ class NotLoggedIn(HTTPException):
                          headers={"WWW-Authenticate": "Bearer"})
 
 
+def user_for_token(state, token: str) -> User | None:
+    """The user ``token`` logs in (None when it does not); a 429 while its token id is throttled
+    (:class:`laplab.console.limits.LoginThrottle`: failed attempts per token id)."""
+    from laplab.console.limits import LoginThrottled
+    user = state.store.cached_user(token=token)
+    if user is not None:
+        return user
+    token_id = token.split(".", 1)[0][:64] if "." in token else ""
+    throttle = state.login_throttle
+    try:
+        throttle.check(token_id)
+    except LoginThrottled as exc:
+        raise HTTPException(429, {"message": str(exc)}, headers={"Retry-After": str(exc.retry_after_s)}) from None
+    user = state.store.user_for_token(token)
+    if user is None:
+        throttle.failed(token_id)
+    return user
+
+
 def identify(request: Request) -> tuple[User | None, str | None]:
     """(user, session id when authenticated by cookie)."""
     app = request.app.state
     header = request.headers.get("authorization", "")
     if header.lower().startswith("bearer "):
-        return app.store.user_for_token(header[7:].strip()), None
+        return user_for_token(app, header[7:].strip()), None
     session = request.cookies.get(SESSION_COOKIE)
     if session:
         user = app.store.user_for_session(session)
@@ -95,6 +114,8 @@ def require_user(request: Request) -> User:
 def _admit(request: Request, user: User | None, session: str | None) -> User:
     if user is None:
         raise NotLoggedIn()
+    from laplab.console.safety import refuse_unless_admitted
+    refuse_unless_admitted(request.app.state, user.is_admin)
     if session is not None and request.method not in SAFE_METHODS:
         sent = request.headers.get(CSRF_HEADER, "")
         if not hmac.compare_digest(sent, csrf_token(request.app.state.secret, session)):

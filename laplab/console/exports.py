@@ -25,7 +25,7 @@ def _laplab(args: list[str], cwd: Path) -> str:
     env = clean_environment({"LAPLAB_HOME": str(laplab_home())}, sandboxed=False)
     try:
         done = subprocess.run([sys.executable, "-m", "laplab.cli", *args], capture_output=True, env=env, cwd=cwd,
-                              timeout=EXPORT_TIMEOUT_S, preexec_fn=limits_preexec(JobLimits(cpu_seconds=600)))
+                              timeout=EXPORT_TIMEOUT_S, preexec_fn=limits_preexec(JobLimits.console(cpu_seconds=600)))
     except subprocess.TimeoutExpired:
         raise ExportError(f"`laplab {args[0]}` did not finish within {EXPORT_TIMEOUT_S:g} s") from None
     if done.returncode != 0:
@@ -68,13 +68,18 @@ def import_archive(stream: BinaryIO, name: str | None, service, user) -> str:
                 if copied > MAX_IMPORT_BYTES:
                     raise ExportError(f"the archive is larger than {MAX_IMPORT_BYTES >> 30} GiB")
                 out.write(chunk)
+        shown = name
         if name:
+            from laplab.console.service import model_key
             try:
                 validate_model_name(name)
+                name = validate_model_name(model_key(user, name))
             except ModelNameError as exc:
                 raise ExportError(str(exc)) from None
             if name in service.owners():
-                raise ExportError(f"a model named {name!r} already exists; import it under another name")
+                raise ExportError(f"you already have a model named {shown!r}; import it under another name")
+        elif not user.is_admin:
+            raise ExportError("name the model to import (model names are per user)")
         output = _laplab(["import", str(path)] + (["--name", name] if name else []), folder)
         imported = output.split("imported model ", 1)[1].split("'")[1]
         service.store.claim_model(imported, user.id, "imported")

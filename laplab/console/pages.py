@@ -6,6 +6,7 @@ Every page needs a user (a Bearer token or the session cookie), except the login
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 from fastapi import APIRouter, Depends, Form, HTTPException, Request
@@ -23,7 +24,9 @@ router = APIRouter(include_in_schema=False)
 def _page(request: Request, template: str, user: User, **context) -> HTMLResponse:
     session = getattr(request.state, "session", None)
     token = csrf_token(request.app.state.secret, session) if session else ""
-    return TEMPLATES.TemplateResponse(request, template, {"user": user, "csrf": token, **context})
+    from laplab.console.safety import banner
+    return TEMPLATES.TemplateResponse(request, template, {"user": user, "csrf": token,
+                                                          "banner": banner(request.app.state), **context})
 
 
 def _defaults() -> dict:
@@ -33,11 +36,25 @@ def _defaults() -> dict:
             "sensors": ALL_SENSORS, "networks": NETWORKS, "algorithms": ALGORITHMS}
 
 
+def _model_key(request: Request, name: str, user: User) -> str:
+    """The key of the model ``user`` calls ``name`` (names are per user); 404 when they have none."""
+    key = request.app.state.service.resolve(user, name)
+    if key is None:
+        raise HTTPException(404, f"no model named {name!r} among your models")
+    return key
+
+
 @router.get("/login", response_class=HTMLResponse)
 def login_page(request: Request, token: str | None = None):
     if token:
         return _login(request, token)
-    return TEMPLATES.TemplateResponse(request, "login.html", {"error": None})
+    return _login_page(request, None)
+
+
+def _login_page(request: Request, error: str | None, status_code: int = 200):
+    from laplab.console.safety import banner
+    return TEMPLATES.TemplateResponse(request, "login.html", {"error": error, "banner": banner(request.app.state)},
+                                      status_code=status_code)
 
 
 @router.post("/login", response_class=HTMLResponse)
@@ -46,9 +63,16 @@ def login_form(request: Request, token: str = Form("")):
 
 
 def _login(request: Request, token: str):
-    user = request.app.state.store.user_for_token(token)
+    from laplab.console.auth import user_for_token
+    from laplab.console.safety import NO_SANDBOX_REFUSAL, may_admit
+    try:
+        user = user_for_token(request.app.state, token)
+    except HTTPException as exc:  # throttled
+        return _login_page(request, exc.detail["message"], exc.status_code)
     if user is None:
-        return TEMPLATES.TemplateResponse(request, "login.html", {"error": "unknown or expired token"}, status_code=401)
+        return _login_page(request, "unknown or expired token", 401)
+    if not may_admit(request.app.state, user.is_admin):
+        return _login_page(request, NO_SANDBOX_REFUSAL, 403)
     session = request.app.state.store.new_session(user.id)
     response = RedirectResponse("/", status_code=303)
     response.set_cookie(SESSION_COOKIE, session, httponly=True, samesite="strict", max_age=7 * 24 * 3600,
@@ -89,11 +113,9 @@ def models_page(request: Request):
 def create_page(request: Request, clone: str | None = None, user: User = Depends(current_user)):
     source = None
     if clone:
-        service = request.app.state.service
-        if not service.can_see(user, clone):
-            raise HTTPException(404, f"no model named {clone!r} among your models")
+        key = _model_key(request, clone, user)
         from laplab.jobs.runner import models_dir
-        folder = models_dir() / clone
+        folder = models_dir() / key
         config = json.loads((folder / "laplab.json").read_text())
         source = {"name": clone, "config": config, "reward": (folder / "reward_function.py").read_text()}
     return _page(request, "create.html", user, title="Clone model" if clone else "Create model",
@@ -102,16 +124,14 @@ def create_page(request: Request, clone: str | None = None, user: User = Depends
 
 @router.get("/models/{name}", response_class=HTMLResponse)
 def model_page(name: str, request: Request, user: User = Depends(current_user)):
-    if not request.app.state.service.can_see(user, name):
-        raise HTTPException(404, f"no model named {name!r} among your models")
+    _model_key(request, name, user)
     return _page(request, "model.html", user, title=name, model=name)
 
 
 @router.get("/models/{name}/report", response_class=HTMLResponse)
 def report_redirect(name: str, request: Request, user: User = Depends(current_user)):
     """The report lives at ``.../report/`` so that its figures (files beside the page) resolve."""
-    if not request.app.state.service.can_see(user, name):
-        raise HTTPException(404, f"no model named {name!r} among your models")
+    _model_key(request, name, user)
     return RedirectResponse(f"/models/{name}/report/", status_code=307)
 
 
@@ -119,8 +139,7 @@ def report_redirect(name: str, request: Request, user: User = Depends(current_us
 def report_page(name: str, request: Request, user: User = Depends(current_user)):
     """The model's HTML report (``laplab report``), built in a child process; its figures are
     served by :func:`report_file`."""
-    if not request.app.state.service.can_see(user, name):
-        raise HTTPException(404, f"no model named {name!r} among your models")
+    name = _model_key(request, name, user)
     from laplab.console.exports import ExportError, _laplab
     from laplab.jobs.runner import models_dir
     try:
@@ -130,20 +149,32 @@ def report_page(name: str, request: Request, user: User = Depends(current_user))
     page = Path(output.strip().splitlines()[-1])
     if not page.is_file():
         raise HTTPException(500, "laplab report wrote no page")
-    return HTMLResponse(page.read_text(encoding="utf-8"), headers={"Cache-Control": "no-store"})
+    from laplab.console.safety import banner_html
+    html = page.read_text(encoding="utf-8")
+    notice = banner_html(request.app.state)
+    if notice:
+        html = re.sub(r"(<body[^>]*>)", lambda m: m.group(1) + notice, html, count=1)
+    return HTMLResponse(html, headers={"Cache-Control": "no-store"})
 
 
 @router.get("/models/{name}/report/{file}")
 def report_file(name: str, file: str, request: Request, user: User = Depends(current_user)):
     """A figure (PNG), video or data file of the model's last built report."""
-    if not request.app.state.service.can_see(user, name):
-        raise HTTPException(404, f"no model named {name!r} among your models")
+    name = _model_key(request, name, user)
     from laplab.jobs.runner import models_dir
     folder = (models_dir() / name / "report").resolve()
     target = (folder / file).resolve()
     if target.parent != folder or not target.is_file():
         raise HTTPException(404, f"the report of {name!r} has no file {file!r}")
     return FileResponse(target, headers={"Cache-Control": "no-store"})
+
+
+@router.get("/users", response_class=HTMLResponse)
+def users_page(request: Request, user: User = Depends(current_user)):
+    """The admin's accounts page (over ``/api/users``)."""
+    if not user.is_admin:
+        raise HTTPException(403, {"message": "only the admin manages accounts"})
+    return _page(request, "users.html", user, title="Accounts")
 
 
 @router.get("/leaderboard", response_class=HTMLResponse)

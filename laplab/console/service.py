@@ -19,6 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from laplab.console.events import EventHub
+from laplab.console.outcomes import (INTERRUPTED_BY_SHUTDOWN, TRAIN_KINDS, death_reason, time_left_s,  # noqa: F401
+                                     without_paths)
 from laplab.jobs.db import ACTIVE_STATUSES, Job, JobStore, User
 from laplab.jobs.runner import JobRunner, job_folder, models_dir
 from laplab.store.layout import ModelFolder, list_models
@@ -26,9 +28,22 @@ from laplab.store.layout import ModelFolder, list_models
 TICK_S = 1.0 / 30.0
 LIST_TTL_S = 0.25
 QUEUE_CHECK_S = 1.0  # the scheduler reads the queue at least this often while a worker is free
-TRAIN_KINDS = ("train", "clone", "resume")
+CREDENTIALS_CHECK_S = 0.5  # how soon `laplab users revoke / disable / remove` takes effect in a running server
 MODEL_STATUS = {"queued": "queued", "running": "training", "stopping": "stopping", "done": "ready",
                 "failed": "failed", "interrupted": "interrupted"}
+
+
+def model_key(user: User, name: str) -> str:
+    """The folder (and job, database) name of ``user``'s model ``name``: model names are per user, so
+    two users may both have ``my-first-model`` (``u7-my-first-model``, ``u9-my-first-model``). The
+    admin's models (and the CLI's) keep their names."""
+    return name if user.is_admin else f"u{user.id}-{name}"
+
+
+def display_name(key: str, owner: int | None) -> str:
+    """The name ``key``'s owner knows it by."""
+    prefix = f"u{owner}-"
+    return key[len(prefix):] if owner is not None and key.startswith(prefix) else key
 
 
 def _iso(timestamp: float | None) -> str | None:
@@ -104,6 +119,8 @@ class ConsoleService:
         self._list_generation = 0
         self._list_refreshing: set[int] = set()
         self._queue_changed, self._queue_checked = True, 0.0  # the queue is read when it may have changed
+        self._credentials_checked = 0.0
+        self.server_stopping = False  # set by the app's shutdown: jobs it stops become `interrupted`
 
     # -- models ------------------------------------------------------------------------------------
 
@@ -114,9 +131,23 @@ class ConsoleService:
         names = set(list_models(models_dir())) | set(records)
         return {n: int(records[n]["owner"]) if n in records else (admin.id if admin else 0) for n in names}
 
+    def resolve(self, user: User, name: str) -> str | None:
+        """The key of the model ``user`` calls ``name`` (None when there is none they may see): their own
+        model of that name; for the admin also any model by its key (what the admin's list shows)."""
+        owners = self.owners()
+        key = model_key(user, name)
+        if key in owners and (user.is_admin or owners[key] == user.id):
+            return key
+        if name in owners and (user.is_admin or owners[name] == user.id):  # the admin; a model from before per-user names
+            return name
+        return None
+
     def can_see(self, user: User, name: str) -> bool:
-        owner = self.owners().get(name)
-        return owner is not None and (user.is_admin or owner == user.id)
+        return self.resolve(user, name) is not None
+
+    def handle(self, key: str, owner: int | None, viewer: User | None) -> str:
+        """How ``viewer`` names model ``key`` (its owner: their own name; the admin: the key)."""
+        return display_name(key, owner) if viewer is None or viewer.id == owner else key
 
     def model_status(self, name: str, summary: dict, jobs: list[Job] | None = None) -> tuple[str, Job | None]:
         jobs = jobs if jobs is not None else self.store.jobs(model=name, kind=TRAIN_KINDS)
@@ -126,12 +157,14 @@ class ConsoleService:
         return ("failed" if summary.get("error") else "ready"), None
 
     def describe(self, name: str, owner: int | None = None, jobs: list[Job] | None = None,
-                 records: dict | None = None) -> dict:
+                 records: dict | None = None, viewer: User | None = None) -> dict:
+        """Model ``name`` (its key) as ``viewer`` sees it (``name``: what they call it; None: its owner)."""
         summary = dict(self.catalog.summary(name))
         status, job = self.model_status(name, summary, jobs)
         record = (records if records is not None else self.store.model_records()).get(name)
-        summary.update(status=status, description=record["description"] if record else "",
-                       owner=self._user_name(owner if owner is not None else self.owners().get(name)),
+        owner = owner if owner is not None else self.owners().get(name)
+        summary.update(name=self.handle(name, owner, viewer), status=status,
+                       description=record["description"] if record else "", owner=self._user_name(owner),
                        progress=job.progress if job else (100.0 if status == "ready" else 0.0),
                        job=job.to_dict() if job else None)
         if not summary["exists"] and job is not None:  # queued: nothing on disk yet, show what was asked
@@ -140,12 +173,13 @@ class ConsoleService:
                            algorithm=meta.get("training_algorithm", "clipped_ppo"), max_time_s=job.params.get("max_time_s"))
         if job is not None and job.error and status in ("failed", "interrupted"):
             summary["error"] = summary.get("error") or job.error
+        summary["error"] = without_paths(summary.get("error"))
         if summary["created"] is None and record is not None:
             summary["created"] = _iso(record["created"])
         return summary
 
     def _user_name(self, user_id: int | None) -> str | None:
-        user = self.store.user_by_id(user_id) if user_id is not None else None
+        user = self.store.user_by_id(user_id, enabled=False) if user_id is not None else None
         return user.name if user else None
 
     def cached_models_json(self, user: User) -> tuple[bytes | None, bool]:
@@ -193,8 +227,8 @@ class ConsoleService:
         for job in all_jobs:
             by_model.setdefault(job.model, []).append(job)
         records = self.store.model_records()
-        out = [self.describe(name, owner, by_model.get(name, []), records) for name, owner in sorted(self.owners().items())
-               if user.is_admin or owner == user.id]
+        out = [self.describe(name, owner, by_model.get(name, []), records, user)
+               for name, owner in sorted(self.owners().items()) if user.is_admin or owner == user.id]
         return sorted(out, key=lambda m: m["created"] or "", reverse=True)
 
     def active_job(self, name: str) -> Job | None:
@@ -232,12 +266,23 @@ class ConsoleService:
         self._publish_status(job.model, job.id, "stopping")
         self.runner.stop(job)
 
+    def stop_jobs_of_absent_users(self) -> None:
+        """Stop the queued and running jobs of users disabled or removed (each keeps its model)."""
+        for job in self.store.jobs(status=("queued", "running")):
+            if self.store.user_by_id(job.owner) is None:
+                self.stop(job)
+
     def _publish_status(self, model: str, job_id: int, status: str, **extra) -> None:
         self.models_changed()
         self.hub.publish(model, "status", {"status": status, "job": job_id, **extra})
 
     def tick(self) -> None:
         """One scheduler step (cheap: a few stats and small reads)."""
+        if time.monotonic() - self._credentials_checked >= CREDENTIALS_CHECK_S:
+            self._credentials_checked = time.monotonic()
+            if self.store.credentials_changed():
+                self.models_changed()
+                self.stop_jobs_of_absent_users()
         for finished in self.runner.poll():
             self._finish(finished.job_id, finished.returncode, finished.error)
         running = self.store.jobs(status=("running", "stopping"))
@@ -321,9 +366,13 @@ class ConsoleService:
         error = result.get("error")
         if runner_error is not None:  # the runner ended it (wall-clock limit), whatever it wrote last
             status, error = "failed", runner_error
+        elif self.server_stopping and job.status == "running" and result.get("stop_reason") in (None, "stopped") \
+                and status != "failed":  # stopped by the server's shutdown, not by its owner or its budget
+            status, error = "interrupted", INTERRUPTED_BY_SHUTDOWN
         elif status not in ("done", "failed"):
             status = "failed"
-            error = error or _death_reason(returncode, job_folder(job_id) / "log.txt")
+            error = error or death_reason(job, returncode, getattr(self.runner, "limits", None))
+        error = without_paths(error)
         self.store.update_job(job_id, status=status, finished=time.time(), error=error, result=result or None,
                               progress=100.0 if status == "done" else job.progress)
         self._event_offsets.pop(job_id, None)
@@ -349,24 +398,6 @@ def _best_with_evaluations(folder: ModelFolder, best: float | None) -> float | N
         if lap is not None:
             best = lap if best is None else min(best, lap)
     return best
-
-
-def _death_reason(returncode: int, log: Path) -> str:
-    import signal
-    number = -returncode if returncode < 0 else returncode - 128 if 128 < returncode < 160 else None
-    if number is not None:  # killed by a signal (bubblewrap reports its child's as 128 + N)
-        try:
-            name = signal.Signals(number).name
-        except ValueError:
-            name = f"signal {number}"
-        why = {"SIGXCPU": "it used up its CPU-time limit", "SIGKILL": "it was killed (memory or a stop)"}.get(name, name)
-        return f"the job process ended by {name}: {why}"
-    tail = ""
-    try:
-        tail = log.read_text(errors="replace").strip().splitlines()[-1]
-    except (OSError, IndexError):
-        pass
-    return f"the job process exited with status {returncode}" + (f": {tail}" if tail else "")
 
 
 def default_workers() -> int:

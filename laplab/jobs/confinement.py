@@ -18,16 +18,17 @@ its filesystem view is the same. See docs/console.md for the threat model.
 
 from __future__ import annotations
 
-import ctypes
+import math
 import os
 import resource
 import shutil
-import signal
 import subprocess
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
+
+from laplab.reward.guards import die_with_parent
 
 GIB = 1024 ** 3
 # hidden behind empty tmpfs mounts inside the sandbox (code found under them is bound back read-only)
@@ -35,16 +36,63 @@ HIDDEN_DIRS = ("/tmp", "/var/tmp", "/dev/shm", "/root", "/home", "/run", "/var/r
 SANDBOX_HOME = "/tmp/laplab"  # on the private /tmp (bwrap can only make folders on a tmpfs)
 
 
+def physical_memory_bytes() -> int | None:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def default_memory_limit() -> int | None:
+    """75% of the machine's memory: a runaway job fails with MemoryError before the machine swaps."""
+    total = physical_memory_bytes()
+    return None if total is None else int(total * 0.75)
+
+
 @dataclass(frozen=True)
 class JobLimits:
-    """Per-job limits: address space (bytes), CPU time (s), largest file written (bytes), and the
-    wall-clock margin (s) a job gets past its own time budget before the server ends it (a job
-    blocked in a sleep or on a lock uses no CPU, so only a wall-clock watchdog catches it)."""
+    """What one job may use, on the command line (``laplab train``'s supervisor) and in the console alike.
 
-    memory_bytes: int = 6 * GIB
-    cpu_seconds: int = 4 * 3600
-    file_bytes: int = 4 * GIB
+    memory_bytes: address-space limit of the job process (RLIMIT_AS; None: unlimited).
+    cpu_seconds: CPU-time limit of the job process, all threads (RLIMIT_CPU; None: unlimited).
+    file_bytes: the largest file the job may write (RLIMIT_FSIZE; None: unlimited).
+    reward_timeout_s: CPU seconds one step's reward calls may take (the reward watchdog).
+    reward_wait_timeout_s: waking seconds one step's reward calls may take however little CPU
+        they use (a call blocked in sleep or input).
+    reward_output_lines: lines a reward function may print on the terminal (the job's log in the
+        console); the rest goes to ``logs/reward-output.log`` in the model folder only.
+    wall_margin_s: (console) wall-clock seconds a job may run past its own time budget before the
+        server ends it (a job blocked in a sleep or on a lock uses no CPU).
+    max_time_s: (console) the longest training a request may ask for (DeepRacer on AWS: 1440 min).
+
+    :meth:`console` gives the console's defaults (6 GiB, 4 h of CPU, 4 GiB files).
+    """
+
+    memory_bytes: int | None = field(default_factory=default_memory_limit)
+    cpu_seconds: float | None = None
+    file_bytes: int | None = None
+    reward_timeout_s: float = 5.0
+    reward_wait_timeout_s: float = 60.0
+    reward_output_lines: int = 50
     wall_margin_s: float = 600.0
+    max_time_s: float = 24 * 3600.0
+
+    def __post_init__(self) -> None:
+        for name in ("memory_bytes", "cpu_seconds", "file_bytes"):
+            value = getattr(self, name)
+            if value is not None and not value > 0:
+                raise ValueError(f"JobLimits.{name} must be positive or None, got {value!r}")
+        for name in ("reward_timeout_s", "reward_wait_timeout_s", "wall_margin_s", "max_time_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"JobLimits.{name} must be a positive number of seconds, got {value!r}")
+        if self.reward_output_lines < 0:
+            raise ValueError(f"JobLimits.reward_output_lines must be >= 0, got {self.reward_output_lines!r}")
+
+    @classmethod
+    def console(cls, **overrides) -> "JobLimits":
+        """The console's limits for one job: 6 GiB of address space, 4 h of CPU, 4 GiB files."""
+        return cls(**{"memory_bytes": 6 * GIB, "cpu_seconds": 4 * 3600, "file_bytes": 4 * GIB, **overrides})
 
 
 @dataclass(frozen=True)
@@ -114,22 +162,31 @@ def clean_environment(extra: dict[str, str] | None = None, sandboxed: bool = Tru
     return env
 
 
-def _set_parent_death_signal() -> None:
-    """The job dies with the server (a SIGKILLed server leaves no orphan writing a model)."""
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except OSError:
-        pass
+def _lower(kind: int, value: float | None, hard_extra: int = 0) -> None:
+    """Set ``kind``'s soft limit to ``value`` (never above the hard limit) and its hard limit to
+    ``value + hard_extra``: a job cannot raise it again."""
+    if value is None:
+        return
+    soft, hard = resource.getrlimit(kind)
+    value = int(value) if hard == resource.RLIM_INFINITY else min(int(value), hard)
+    value = max(value, 1)
+    top = value + hard_extra if hard == resource.RLIM_INFINITY else min(value + hard_extra, hard)
+    resource.setrlimit(kind, (value, top))
+
+
+def apply_limits(limits: JobLimits) -> None:
+    """In the job's process: the resource limits of ``limits`` (address space, CPU time with a 10 s
+    grace from SIGXCPU to SIGKILL, file size, no core dumps) and death with its parent."""
+    die_with_parent()
+    _lower(resource.RLIMIT_AS, limits.memory_bytes)
+    _lower(resource.RLIMIT_CPU, limits.cpu_seconds, 10)
+    _lower(resource.RLIMIT_FSIZE, limits.file_bytes)
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
 
 
 def limits_preexec(limits: JobLimits):
-    def apply() -> None:
-        _set_parent_death_signal()
-        resource.setrlimit(resource.RLIMIT_AS, (limits.memory_bytes, limits.memory_bytes))
-        resource.setrlimit(resource.RLIMIT_CPU, (limits.cpu_seconds, limits.cpu_seconds + 10))
-        resource.setrlimit(resource.RLIMIT_FSIZE, (limits.file_bytes, limits.file_bytes))
-        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
-    return apply
+    """:func:`apply_limits` for ``subprocess.Popen(preexec_fn=...)``."""
+    return lambda: apply_limits(limits)
 
 
 def confined_command(command: list[str], mounts: Mounts, use_bubblewrap: bool | None = None) -> list[str]:

@@ -110,12 +110,33 @@ class JobStore:
         self._db.execute("PRAGMA synchronous=NORMAL")
         self._db.execute("PRAGMA foreign_keys=ON")
         self._db.executescript(_SCHEMA)
+        if "disabled" not in {r["name"] for r in self._db.execute("PRAGMA table_info(users)")}:
+            self._db.execute("ALTER TABLE users ADD COLUMN disabled INTEGER NOT NULL DEFAULT 0")
         os.chmod(self.path, 0o600)
-        self._verified: dict[str, tuple[int, float | None]] = {}  # sha256(token) -> (user id, expiry)
+        self._data_version = self._db.execute("PRAGMA data_version").fetchone()[0]
+        self._verified: dict[str, tuple[int, float | None, str]] = {}  # sha256(token) -> (user id, expiry, token id)
         self._verifying: dict[str, threading.Lock] = {}  # sha256(token) -> the lock of its one argon2 check
         self._verifying_guard = threading.Lock()
         self._sessions: dict[str, tuple[int, float]] = {}  # sha256(session) -> (user id, expiry)
-        self._users: dict[int, User] = {}  # users never change once made; new ones are read on demand
+        self._users: dict[int, User] = {}  # enabled users, read on demand; dropped when disabled or removed
+
+    def credentials_changed(self) -> bool:
+        """Drop what memory holds about tokens, sessions and users when another process (``laplab users
+        revoke / disable / remove``) changed the database since the last call (cheap: one PRAGMA)."""
+        with self._lock:
+            version = self._db.execute("PRAGMA data_version").fetchone()[0]
+            if version == self._data_version:
+                return False
+            self._data_version = version
+        self.forget_credentials()
+        return True
+
+    def forget_credentials(self) -> None:
+        """Tokens, sessions and users are checked against the database again from now on (argon2 once more
+        per token): a revoked token, a disabled or removed user stop working at once."""
+        self._verified.clear()
+        self._sessions.clear()
+        self._users.clear()
 
     def close(self) -> None:
         with self._lock:
@@ -202,14 +223,20 @@ class JobStore:
                 hasher.verify(row["hash"], token)
             except (VerificationError, InvalidHashError):
                 continue
-            self._verified[key] = (int(row["user_id"]), row["expires"])
-            return self.user_by_id(int(row["user_id"]))
+            user = self.user_by_id(int(row["user_id"]))
+            if user is not None:  # None: disabled
+                self._verified[key] = (int(row["user_id"]), row["expires"], row["id"])
+            return user
         return None
 
-    def user_by_id(self, user_id: int) -> User | None:
+    def user_by_id(self, user_id: int, enabled: bool = True) -> User | None:
+        """An enabled user (None when there is none or it is disabled; ``enabled=False``: any user)."""
         user = self._users.get(user_id)
-        if user is None:
+        if user is None and not enabled:
             rows = self._rows("SELECT * FROM users WHERE id=?", (user_id,))
+            return User(rows[0]["id"], rows[0]["name"], bool(rows[0]["is_admin"])) if rows else None
+        if user is None:
+            rows = self._rows("SELECT * FROM users WHERE id=? AND disabled=0", (user_id,))
             if rows:
                 user = self._users[user_id] = User(rows[0]["id"], rows[0]["name"], bool(rows[0]["is_admin"]))
         return user
@@ -221,8 +248,64 @@ class JobStore:
     def users(self) -> list[User]:
         return [User(r["id"], r["name"], bool(r["is_admin"])) for r in self._rows("SELECT * FROM users ORDER BY id")]
 
+    def user_rows(self) -> list[dict]:
+        """Every user with ``disabled`` and their tokens (id, label, created, expires): no secrets."""
+        tokens: dict[int, list[dict]] = {}
+        for row in self._rows("SELECT id, user_id, label, created, expires FROM tokens ORDER BY created"):
+            tokens.setdefault(row["user_id"], []).append({"id": row["id"], "label": row["label"],
+                                                          "created": row["created"], "expires": row["expires"]})
+        return [{"name": r["name"], "admin": bool(r["is_admin"]), "disabled": bool(r["disabled"]),
+                 "created": r["created"], "tokens": tokens.get(r["id"], [])}
+                for r in self._rows("SELECT * FROM users ORDER BY id")]
+
+    def _existing(self, name: str) -> sqlite3.Row:
+        rows = self._rows("SELECT * FROM users WHERE name=?", (name,))
+        if not rows:
+            raise StoreError(f"no user named {name!r} (laplab users list)")
+        return rows[0]
+
+    def set_disabled(self, name: str, disabled: bool = True) -> None:
+        """Disable (or enable again) ``name``: a disabled user's tokens and sessions stop working; their
+        models stay (and stay on the leaderboard)."""
+        row = self._existing(name)
+        if disabled and row["is_admin"] and len(self._rows("SELECT 1 FROM users WHERE is_admin=1 AND disabled=0")) <= 1:
+            raise StoreError(f"{name!r} is the only admin: it cannot be disabled")
+        self._execute("UPDATE users SET disabled=? WHERE id=?", (int(disabled), row["id"]))
+        self.forget_credentials()
+
+    def revoke_tokens(self, name: str, token_id: str | None = None) -> int:
+        """Revoke ``name``'s token ``token_id`` (all of them when None) and end their sessions; returns
+        how many tokens were revoked."""
+        row = self._existing(name)
+        with self._lock:
+            if token_id is None:
+                count = self._execute("DELETE FROM tokens WHERE user_id=?", (row["id"],)).rowcount
+                self._execute("DELETE FROM sessions WHERE user_id=?", (row["id"],))
+            else:
+                count = self._execute("DELETE FROM tokens WHERE user_id=? AND id=?", (row["id"], token_id)).rowcount
+                if not count:
+                    raise StoreError(f"{name!r} has no token {token_id!r} (laplab users list --tokens)")
+        self.forget_credentials()
+        return count
+
+    def remove_user(self, name: str) -> int:
+        """Remove ``name``: their tokens and sessions end, their models pass to the (first other) admin;
+        nothing is deleted (their jobs keep their owner id: the console stops those still active).
+        Returns how many models passed."""
+        row = self._existing(name)
+        heirs = self._rows("SELECT id FROM users WHERE is_admin=1 AND id!=? ORDER BY disabled, id LIMIT 1", (row["id"],))
+        if not heirs:
+            raise StoreError(f"{name!r} is the only admin: it cannot be removed")
+        with self._lock:
+            self._execute("DELETE FROM tokens WHERE user_id=?", (row["id"],))
+            self._execute("DELETE FROM sessions WHERE user_id=?", (row["id"],))
+            moved = self._execute("UPDATE models SET owner=? WHERE owner=?", (heirs[0]["id"], row["id"])).rowcount
+            self._execute("DELETE FROM users WHERE id=?", (row["id"],))
+        self.forget_credentials()
+        return moved
+
     def admin(self) -> User | None:
-        rows = self._rows("SELECT * FROM users WHERE is_admin=1 ORDER BY id LIMIT 1")
+        rows = self._rows("SELECT * FROM users WHERE is_admin=1 AND disabled=0 ORDER BY id LIMIT 1")
         return User(rows[0]["id"], rows[0]["name"], True) if rows else None
 
     # -- sessions --------------------------------------------------------------------------------
@@ -239,7 +322,7 @@ class JobStore:
             return None
         key = _sha256(session)
         rows = self._rows("SELECT user_id, expires FROM sessions WHERE hash=?", (key,))
-        if not rows or rows[0]["expires"] < time.time():
+        if not rows or rows[0]["expires"] < time.time() or self.user_by_id(int(rows[0]["user_id"])) is None:
             return None
         self._sessions[key] = (int(rows[0]["user_id"]), float(rows[0]["expires"]))
         return self.user_by_id(int(rows[0]["user_id"]))

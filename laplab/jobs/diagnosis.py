@@ -21,8 +21,8 @@ def describe_death(reports: dict, returncode: int | None, signum: int | None, cr
         if signum == signal.SIGKILL and reports.get("reward_call"):
             how = f"was killed by {name}, which its reward function sent"
         elif signum == signal.SIGKILL:
-            how = (f"was killed by {name}: the system's out-of-memory killer (it had used "
-                   f"{_size(max_rss)} at its peak) or another process (kill -9)")
+            peak = f" (it had used {_size(max_rss)} at its peak)" if max_rss else ""
+            how = f"was killed by {name}: the system's out-of-memory killer{peak} or another process (kill -9)"
         elif signum == getattr(signal, "SIGXCPU", None):
             how = f"used up its CPU-time limit of {limits.cpu_seconds:g} s (--cpu-limit) and was stopped"
         elif signum in _FATAL:

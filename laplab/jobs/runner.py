@@ -19,12 +19,15 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Protocol
 
 from laplab.jobs.db import Job, laplab_home
 from laplab.jobs.confinement import SANDBOX_HOME, JobLimits, Mounts, bubblewrap_works, clean_environment, start_confined
+from laplab.jobs.supervisor import ENV_LIMITS
+
+CRASH_LOG = "crash.txt"  # faulthandler's dump of a job that crashed, in its folder
 
 
 @dataclass(frozen=True)
@@ -136,9 +139,9 @@ def write_spec(job: Job, cluster: dict | None = None) -> Path:
 class LocalProcessRunner:
     """Each job a confined child process of the server (bubblewrap when it works, else limits only)."""
 
-    def __init__(self, limits: JobLimits = JobLimits(), sandbox: bool | None = None, cluster=None,
+    def __init__(self, limits: JobLimits | None = None, sandbox: bool | None = None, cluster=None,
                  threads_per_job: int = 1):
-        self.limits = limits
+        self.limits = limits if limits is not None else JobLimits.console()
         self.sandbox = bubblewrap_works() if sandbox is None else sandbox
         self.cluster = cluster  # a laplab.cluster.console.RayCluster: training jobs' workers run there
         # a job's OpenMP threads: its camera learner's torch threads and its simulator's numba threads
@@ -154,12 +157,16 @@ class LocalProcessRunner:
         write_spec(job, self.cluster.to_spec() if on_cluster else None)
         folder = job_folder(job.id)
         inside = f"{SANDBOX_HOME}/job" if self.sandbox else str(folder)
+        limits = self._limits_for(job)
         env = self.environment(job, on_cluster)
+        # the worker enters the job as `laplab train`'s supervised child does (laplab.jobs.supervisor.enter_job):
+        # the same limits, the reward watchdog, the os._exit guard, the output cap and a crash log
+        env[ENV_LIMITS] = json.dumps({**asdict(limits), "status_fd": None, "crash_log": f"{inside}/{CRASH_LOG}"})
         mounts = job_mounts(job)
         if on_cluster:  # the network, to reach the cluster; the same files as any job
             mounts = replace(mounts, network=True)
         command = [sys.executable, "-m", "laplab.jobs.worker", inside]
-        process = start_confined(command, mounts, self._limits_for(job), folder / "log.txt", env, self.sandbox)
+        process = start_confined(command, mounts, limits, folder / "log.txt", env, self.sandbox)
         self._processes[job.id] = process
         limit = wall_limit_s(job, self.limits.wall_margin_s)
         self._deadlines[job.id] = (time.monotonic() + limit, limit)
@@ -178,8 +185,8 @@ class LocalProcessRunner:
     def _limits_for(self, job: Job) -> JobLimits:
         """CPU time: the job's wall budget on every core, plus a margin for start-up and evaluation."""
         budget = float(job.params.get("max_time_s") or 0) * (os.cpu_count() or 1) * 1.5 + 600
-        return JobLimits(self.limits.memory_bytes, int(min(self.limits.cpu_seconds, budget)), self.limits.file_bytes,
-                         self.limits.wall_margin_s)
+        cpu = budget if self.limits.cpu_seconds is None else min(self.limits.cpu_seconds, budget)
+        return replace(self.limits, cpu_seconds=int(cpu))
 
     def stop(self, job: Job) -> None:
         """Ask through the job's folder (a signal would end bubblewrap, and with it the job, at once)."""

@@ -3,9 +3,11 @@
 The supervisor waits for the child and, whatever way it dies (an exit code it did not report, a
 signal, the out-of-memory killer, its CPU limit), writes ``error.txt`` in the job's model folder,
 prints one paragraph saying what died, at which iteration and, when known, in which line of the
-reward function, and returns a non-zero exit code. The child runs under the :class:`JobLimits`:
-``RLIMIT_AS`` (memory) and ``RLIMIT_CPU`` set in the child, the reward watchdog's time limit, and a
-cap on what the reward function prints on the terminal.
+reward function, and returns a non-zero exit code. The child runs under the :class:`JobLimits`
+of :mod:`laplab.jobs.confinement` (the console's jobs use the same class and the same
+:func:`~laplab.jobs.confinement.apply_limits`): ``RLIMIT_AS`` (memory), ``RLIMIT_CPU`` and
+``RLIMIT_FSIZE`` set in the child, the reward watchdog's time limit, and a cap on what the reward
+function prints on the terminal.
 
 Library use (the console runs its jobs this way)::
 
@@ -35,54 +37,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from laplab.jobs.confinement import JobLimits, apply_limits, default_memory_limit, physical_memory_bytes  # noqa: F401
 from laplab.jobs.diagnosis import describe_death
 
 ENV_LIMITS = "LAPLAB_JOB_LIMITS"  # JSON of JobLimits + the status fd and crash-log path, for an exec'ed child
 ENV_DISABLE = "LAPLAB_SUPERVISOR"  # "0": the command line runs jobs in its own process (no supervisor)
-
-
-def physical_memory_bytes() -> int | None:
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
-def default_memory_limit() -> int | None:
-    """75% of the machine's memory: a runaway job fails with MemoryError before the machine swaps."""
-    total = physical_memory_bytes()
-    return None if total is None else int(total * 0.75)
-
-
-@dataclass(frozen=True)
-class JobLimits:
-    """What one job may use.
-
-    memory_bytes: address-space limit of the job process (RLIMIT_AS; None: unlimited).
-    cpu_seconds: CPU-time limit of the job process, all threads (RLIMIT_CPU; None: unlimited).
-    reward_timeout_s: CPU seconds one step's reward calls may take (the reward watchdog).
-    reward_wait_timeout_s: waking seconds one step's reward calls may take however little CPU
-        they use (a call blocked in sleep or input).
-    reward_output_lines: lines a reward function may print on the terminal; the rest goes to the
-        job's log only (``logs/reward-output.log`` in the model folder).
-    """
-
-    memory_bytes: int | None = field(default_factory=default_memory_limit)
-    cpu_seconds: float | None = None
-    reward_timeout_s: float = 5.0
-    reward_wait_timeout_s: float = 60.0
-    reward_output_lines: int = 50
-
-    def __post_init__(self) -> None:
-        for name in ("memory_bytes", "cpu_seconds"):
-            value = getattr(self, name)
-            if value is not None and not value > 0:
-                raise ValueError(f"JobLimits.{name} must be positive or None, got {value!r}")
-        for name in ("reward_timeout_s", "reward_wait_timeout_s"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"JobLimits.{name} must be positive, got {getattr(self, name)!r}")
-        if self.reward_output_lines < 0:
-            raise ValueError(f"JobLimits.reward_output_lines must be >= 0, got {self.reward_output_lines!r}")
 
 
 def parse_memory_limit(text: str) -> int | None:
@@ -175,19 +134,10 @@ def job_failed(message: str) -> None:
 def enter_job(limits: JobLimits, status_fd: int | None, crash_log: str | None) -> None:
     """Set up this process as a supervised job: limits, death with the supervisor, crash log, guards."""
     import faulthandler
-    import resource
 
     from laplab.jobs import sandbox
     _child["limits"], _child["status_fd"] = limits, status_fd
-    if limits.memory_bytes is not None:
-        soft, hard = resource.getrlimit(resource.RLIMIT_AS)
-        value = int(limits.memory_bytes) if hard == resource.RLIM_INFINITY else min(int(limits.memory_bytes), hard)
-        resource.setrlimit(resource.RLIMIT_AS, (value, hard))
-    if limits.cpu_seconds is not None:
-        soft, hard = resource.getrlimit(resource.RLIMIT_CPU)
-        value = int(limits.cpu_seconds) if hard == resource.RLIM_INFINITY else min(int(limits.cpu_seconds), hard)
-        resource.setrlimit(resource.RLIMIT_CPU, (max(value, 1), hard))
-    sandbox.die_with_parent()
+    apply_limits(limits)  # the same limits as a console job's (laplab.jobs.confinement)
     if crash_log:
         handle = open(crash_log, "w")  # noqa: SIM115 - kept open for faulthandler until the process ends
         _child["crash_log"] = handle

@@ -84,7 +84,7 @@ def validate_confined(source: str, track: str | None, model_metadata: dict | Non
         request = json.dumps({"source": source, "track": track, "model_metadata": model_metadata})
         try:
             done = subprocess.run(command, input=request.encode(), capture_output=True, env=env,
-                                  timeout=VALIDATION_TIMEOUT_S, preexec_fn=limits_preexec(JobLimits(cpu_seconds=120)),
+                                  timeout=VALIDATION_TIMEOUT_S, preexec_fn=limits_preexec(JobLimits.console(cpu_seconds=120)),
                                   cwd=None if use else str(scratch))
         except subprocess.TimeoutExpired:
             return {"ok": False, "errors": [{"line": None, "message": f"validation did not finish within "
@@ -93,8 +93,10 @@ def validate_confined(source: str, track: str | None, model_metadata: dict | Non
         try:
             return json.loads(lines[-1])
         except (IndexError, ValueError):
-            tail = done.stderr.decode(errors="replace").strip().splitlines()[-3:]
-            return {"ok": False, "errors": [{"line": None, "message": "validation failed: " + " ".join(tail)}]}
+            # not its output: whatever the reward function printed (files, the environment) stays out of the answer
+            return {"ok": False, "errors": [{"line": None, "message": (
+                f"the validation ended without an answer (exit status {done.returncode}): the reward function "
+                "ended its process (os._exit, a signal, a crash) or used up its limits")}]}
     finally:
         import shutil
         shutil.rmtree(scratch, ignore_errors=True)

@@ -138,6 +138,12 @@ def _train(files: JobFiles, spec: dict) -> None:
             trainer = create_training_in_place(name, config, init_weights=weights)
         else:
             trainer = create_training_in_place(name, replace(TrainConfig(), **values))
+    from laplab.jobs.supervisor import job_limits, report
+    from laplab.reward.watchdog import RewardWatchdog, WatchdogLimits
+    # as `laplab train` does: reward output beyond the cap goes to the model folder's log from here on
+    report(folder=str(trainer.folder.root), model=name, what="training job", iteration=trainer.iteration)
+    limits = job_limits()
+    watch = WatchdogLimits(limits.reward_timeout_s, limits.reward_wait_timeout_s)
     trainer.subscribe(LiveFeed(files, trainer))
     trainer.subscribe(PhaseFeed(files))
     files.event("started", iteration=trainer.iteration)
@@ -149,13 +155,18 @@ def _train(files: JobFiles, spec: dict) -> None:
     try:
         if cluster:
             from laplab.cluster.console import start_job_workers
-            collector = start_job_workers(trainer, cluster, workers, lambda message: print(message, flush=True))
-        result = trainer.run(callbacks=(on_iteration,), should_stop=files.should_stop)
+            collector = start_job_workers(trainer, cluster, workers, lambda message: print(message, flush=True), watch)
+        with RewardWatchdog(watch):  # the per-step limit on reward calls, as on the command line
+            result = trainer.run(callbacks=(on_iteration,), should_stop=files.should_stop)
     finally:
         if collector is not None:
             collector.close()
     summary = {"stop_reason": result.stop_reason, "iterations": result.iterations, "episodes": result.episodes,
                "env_steps": result.env_steps, "elapsed_s": result.elapsed_s, "best_lap_time": result.best_lap_time}
+    from laplab.jobs.sandbox import reward_output_summary
+    held_back = reward_output_summary()
+    if held_back:
+        print(held_back, flush=True)
     if result.error:
         files.finish("failed", error=result.error, **summary)
     else:
@@ -219,6 +230,10 @@ def _export(files: JobFiles, spec: dict) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    from laplab.jobs.supervisor import enter_job_from_environment
+    # the limits, death with the server, the os._exit guard and the reward output cap of a supervised
+    # CLI job (the server sets LAPLAB_JOB_LIMITS: laplab.jobs.runner)
+    enter_job_from_environment()
     files = JobFiles(Path(argv[0]))
     signal.signal(signal.SIGTERM, lambda *_: files.stop_requested.set())
     signal.signal(signal.SIGINT, lambda *_: files.stop_requested.set())

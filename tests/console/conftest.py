@@ -100,9 +100,9 @@ def numba_seed(base) -> Path:
 
 
 @contextmanager
-def serve(home, workers: int = 2, **kwargs):
-    """A console over ``home`` on a free port, its numba cache seeded (:func:`numba_seed`); stops it
-    (and its jobs) on exit."""
+def serve(home, workers: int = 2, seed_numba: bool = True, **kwargs):
+    """A console over ``home`` on a free port, its numba cache seeded (:func:`numba_seed`; not with
+    ``seed_numba=False``, for tests that run no job); stops it (and its jobs) on exit."""
     import shutil
 
     import uvicorn
@@ -110,14 +110,16 @@ def serve(home, workers: int = 2, **kwargs):
     from laplab.console.app import create_app
     from laplab.jobs.warmup import trusted_cache
     from pathlib import Path
-    seed = numba_seed(Path(home).parent)
-    if not trusted_cache(Path(home)).exists():
+    seed = numba_seed(Path(home).parent) if seed_numba else None
+    if seed is not None and not trusted_cache(Path(home)).exists():
         shutil.copytree(seed, trusted_cache(Path(home)))
     mp = pytest.MonkeyPatch()
     mp.setenv("LAPLAB_HOME", str(home))
     mp.setenv("LAPLAB_ADMIN_TOKEN", ADMIN_TOKEN)
     try:
-        app = create_app(workers, **{"warm_cache": False, **kwargs})  # seeded above
+        # warm_cache: seeded above; allow_unsandboxed: the other tests' users log in where bubblewrap is
+        # missing too (test_safe_default.py tests the refusal, with allow_unsandboxed=False)
+        app = create_app(workers, **{"warm_cache": False, "allow_unsandboxed": True, **kwargs})
         port = free_port()
         server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
         thread = threading.Thread(target=server.run, daemon=True)

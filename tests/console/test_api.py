@@ -136,7 +136,12 @@ def test_authorisation_matrix(console, make_model):
         assert answer.status_code == 404, (method, path, answer.status_code)
     assert bob.get("/api/models/bob-model").json()["status"] == "ready"
     assert console.admin.get("/api/models/bob-model").status_code == 200  # the admin (teacher) sees all
-    assert alice.post("/api/models", json={"name": "bob-model"}).status_code == 409
+    # names are per user: alice may have a bob-model too, and the answer says nothing about bob's
+    mine = alice.post("/api/models", json={"name": "bob-model", "max_time_s": 5,
+                                         "hyperparameters": {"num_episodes_between_training": 2}})
+    assert mine.status_code == 201, mine.text
+    assert alice.post("/api/models", json={"name": "bob-model"}).status_code == 409  # her own, now
+    alice.post("/api/models/bob-model/stop")
     assert bob.get("/api/models/bob-model/download?format=zip").status_code == 422
     assert bob.delete("/api/models/bob-model").status_code == 200
     assert bob.get("/api/models/bob-model").status_code == 404

@@ -53,7 +53,7 @@ CPU_SECONDS = 25
 @pytest.fixture(scope="module")
 def confined_console(tmp_path_factory, serve_console):
     with serve_console(tmp_path_factory.mktemp("isolation-home"), workers=3,
-                       limits=JobLimits(cpu_seconds=CPU_SECONDS)) as running:
+                       limits=JobLimits.console(cpu_seconds=CPU_SECONDS)) as running:
         yield running
 
 

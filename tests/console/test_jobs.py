@@ -118,6 +118,9 @@ def test_train_watch_stop_evaluate_leaderboard_download_import_clone(console):
     imported = user.post("/api/models/import", files={"file": ("live.tar.gz", tar.content)}, data={"name": "imported-copy"})
     assert imported.status_code == 201, imported.text
     assert [m["name"] for m in user.get("/api/models").json()] == ["imported-copy"]
+    # another user sees the admin's row on the leaderboard, but not the model's name
+    theirs = user.get("/api/leaderboard?track=oval").json()[0]["entries"][0]
+    assert theirs["user"] == "admin" and theirs["model"] is None
     assert user.post("/api/models/import", files={"file": ("live.tar.gz", tar.content)},
                      data={"name": "imported-copy"}).status_code == 400
 

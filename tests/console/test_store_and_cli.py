@@ -36,10 +36,11 @@ def test_store_is_wal_and_interrupts_running_jobs_at_start(tmp_path):
 def test_users_add_prints_a_token_that_logs_in(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("LAPLAB_HOME", str(tmp_path))
     monkeypatch.delenv("LAPLAB_ADMIN_TOKEN", raising=False)
-    assert main(["users", "add", "dana"]) == 0
+    # --no-sandbox: this test is about the token, not the sandbox (test_safe_default.py: the refusal)
+    assert main(["users", "add", "dana", "--no-sandbox"]) == 0
     token = capsys.readouterr().out.strip().splitlines()[-1]
     assert JobStore().user_for_token(token).name == "dana"
-    assert main(["users", "add", "dana"]) == 2
+    assert main(["users", "add", "dana", "--no-sandbox"]) == 2
     assert "already exists" in capsys.readouterr().err
     assert main(["users", "list"]) == 0
     assert "admin" in capsys.readouterr().out

@@ -37,7 +37,7 @@ WALL_MARGIN_S = 25
 
 
 def test_a_job_that_sleeps_forever_is_ended_at_its_wall_clock_limit(tmp_path, serve_console):
-    with serve_console(tmp_path, workers=1, limits=JobLimits(wall_margin_s=WALL_MARGIN_S)) as console:
+    with serve_console(tmp_path, workers=1, limits=JobLimits.console(wall_margin_s=WALL_MARGIN_S)) as console:
         created = console.admin.post("/api/models", json={"name": "sleeper", "reward_function": SLEEPER,
                                                           "max_time_s": 3, "hyperparameters": TINY})
         assert created.status_code == 201, created.text
