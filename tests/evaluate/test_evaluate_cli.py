@@ -10,13 +10,11 @@ import numpy as np
 import pytest
 
 from laplab.cli import main
-from laplab.env.metadata import ModelMetadata
 from laplab.evaluate import EvaluationSettings, evaluate_model
 from laplab.store.layout import model_folder
 from laplab.store.metrics import read_metrics
 from laplab.store.simtrace import read_simtrace
-from laplab.train.config import TrainConfig
-from laplab.train.jobs import create_training
+from tests.evaluate.conftest import train_tiny_model
 
 MODEL = "eval-me"
 QUICK = ["--max-trial-time", "12"]  # s: the tiny model may never finish; keep trials short
@@ -27,11 +25,7 @@ def home(tmp_path_factory):
     with pytest.MonkeyPatch.context() as patch:
         root = tmp_path_factory.mktemp("home")
         patch.setenv("LAPLAB_HOME", str(root))
-        hyper = {**TrainConfig().hyper().to_dict(), "num_episodes_between_training": 4, "batch_size": 32,
-                 "num_epochs": 3}
-        config = replace(TrainConfig(), hyperparameters=hyper, model_metadata=ModelMetadata().to_dict(),
-                         max_episodes=8, max_time_s=120)
-        create_training(MODEL, config).run()
+        train_tiny_model(MODEL)
         yield root
 
 

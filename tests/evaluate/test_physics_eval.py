@@ -4,16 +4,12 @@ DeepRacer's cars keeps laplab's classic car and says so."""
 from __future__ import annotations
 
 import json
-from dataclasses import replace
-
 import pytest
 
 from laplab.cli import main
-from laplab.env.metadata import ModelMetadata
 from laplab.evaluate import EvaluationSettings, evaluate_model
 from laplab.store.layout import model_folder
-from laplab.train.config import TrainConfig
-from laplab.train.jobs import create_training
+from tests.evaluate.conftest import train_tiny_model
 
 QUICK = dict(trials=1, max_trial_time=8.0)
 
@@ -23,12 +19,8 @@ def home(tmp_path_factory):
     with pytest.MonkeyPatch.context() as patch:
         root = tmp_path_factory.mktemp("home")
         patch.setenv("LAPLAB_HOME", str(root))
-        hyper = {**TrainConfig().hyper().to_dict(), "num_episodes_between_training": 4, "batch_size": 32,
-                 "num_epochs": 3}
         for name, car in (("v4-model", "deepracer-v4"), ("old-model", "deepracer-v6")):
-            config = replace(TrainConfig(), hyperparameters=hyper, model_metadata=ModelMetadata().to_dict(),
-                             max_episodes=4, max_time_s=60, vehicle=car)
-            create_training(name, config).run()
+            train_tiny_model(name, max_episodes=4, max_time_s=60, vehicle=car)
         # a folder written before DeepRacer's cars: config version 1, where "deepracer" was laplab's car
         path = model_folder("old-model").laplab_config
         document = json.loads(path.read_text())
