@@ -6,16 +6,18 @@ For every route ``routes/<name>.npy`` it reads the route's world (``worlds/<name
 the sky or background), the track model it includes (``models/<model>/*.sdf``) and the COLLADA meshes
 that model shows (``meshes/...``), and writes numbers only: per surface (road, border lines, centre
 line, field, walls) the albedo (mean RGB of the diffuse texture, or the diffuse colour), the grey
-standard deviation of the texture over 5 mm squares of ground (``std``) and its grain (autocorrelation half-width, metres on the ground);
-the widths of the border and centre lines, the dash length and gap of the centre line, the walls'
-height and the room they close, the lights. Surfaces are recognised by their node, material and texture
-names (``road``, ``ol``/``il``/outer/inner line, ``cl``/centre line, ``field``/grass, ``wall``);
-anything else taller than 0.3 m (grandstands, buildings) counts as background scenery, summarised as a
-wall of its median height and mean colour. A route whose road or lines are not recognised gets no
-entry (laplab then uses its default look and says so).
+standard deviation of the texture over 5 mm squares of ground (``std``) and its grain
+(autocorrelation half-width, metres on the ground); the widths of the border and centre lines, the
+dash length and gap of the centre line, the walls' height and the room they close, the lights.
+Surfaces are recognised by their node, material and texture names (``road``, ``ol``/``il``/outer/inner
+line, ``cl``/centre line, ``field``/grass, ``wall``); anything else taller than 0.3 m (grandstands,
+buildings) counts as background scenery, summarised as a wall of its median height and mean colour. A
+route whose road or lines are not recognised gets no entry (laplab then uses its default look and says
+so).
 
-The numbers were derived from the Gazebo-classic release (commit b7599b42, "2024 February Release"),
-the simulator that drew the frames in ../shared/real-deepracer/frames. Needs numpy and Pillow.
+The shipped file was derived from the last Gazebo-classic release (commit b7599b42, "2024 February
+Release"): Gazebo classic's grey background and its shading of these lights match the frames in
+../shared/real-deepracer/frames (docs/camera.md). Needs numpy and Pillow.
 """
 
 from __future__ import annotations

@@ -120,8 +120,9 @@ def rasterise_track_coverage(track, params) -> tuple[np.ndarray, float, float]:
     if params.room is not None:
         low, high = np.array(params.room[:2], dtype=np.float64), np.array(params.room[2:], dtype=np.float64)
         if (everything.min(axis=0) < low).any() or (everything.max(axis=0) > high).any():
+            extent = f"{everything.min(axis=0).round(3).tolist()} .. {everything.max(axis=0).round(3).tolist()}"
             raise ValueError(f"texture: TextureParams.room {params.room} does not hold the track (its extent is "
-                             f"{everything.min(axis=0).round(3).tolist()} .. {everything.max(axis=0).round(3).tolist()})")
+                             f"{extent})")
     lo = np.floor(low / res + 1e-9) * res
     hi = np.ceil(high / res - 1e-9) * res
     width, height = int(round((hi[0] - lo[0]) / res)), int(round((hi[1] - lo[1]) / res))

@@ -118,7 +118,8 @@ def paint_walls(params, palette, perimeter: float, room: tuple[float, float, flo
     shade = 1.0 + 0.10 * (z / params.wall_height - 0.5)
     panel_tone = np.where(np.floor(p / params.panel_width) % 2 == 0, 1.0, 0.94)
     rgb = base[None, None, :] * shade[:, None, None] * panel_tone[None, :, None]
-    seam = np.abs((p + 0.5 * params.seam_width) % params.panel_width - 0.5 * params.seam_width) < 0.5 * params.seam_width
+    half_seam = 0.5 * params.seam_width
+    seam = np.abs((p + half_seam) % params.panel_width - half_seam) < half_seam
     rgb[:, seam] = palette.wall_seam
     rgb[z < params.skirting_height] = palette.skirting
     return np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
