@@ -218,6 +218,46 @@ def arc_positions(points, line):
     return result, cum[-1]
 
 
+def distance_to(points, line):
+    """Distance (m) of each of ``points`` (P, 2) to the polyline ``line`` (M, 2)."""
+    a, d = line[:-1], line[1:] - line[:-1]
+    result = np.empty(len(points))
+    for start in range(0, len(points), 2000):
+        p = points[start:start + 2000]
+        t = np.clip(((p[:, None] - a[None]) * d[None]).sum(-1) / np.maximum((d * d).sum(-1), 1e-12)[None], 0, 1)
+        result[start:start + 2000] = np.linalg.norm(p[:, None] - (a[None] + t[..., None] * d[None]), axis=-1).min(1)
+    return result
+
+
+def on_route(found, route):
+    """Keep the road, line and centre parts that lie where the route says they are: the road within
+    the route's half width (+5 cm) of the centre line, tape within 15 cm of a border, centre line
+    within 10 cm of the centre line (median over a part's vertices); a road may also be one sheet under
+    the whole route (the carpet, concrete and wood worlds). City worlds name other meshes "road" or
+    "track"; this drops them."""
+    centre, inner, outer = route[:, 0:2], route[:, 2:4], route[:, 4:6]
+    half = 0.5 * float(np.median(np.linalg.norm(inner - outer, axis=1)))
+    tests = {"road": lambda p: np.median(distance_to(p, centre)) < half + 0.05,
+             "border": lambda p: np.median(np.minimum(distance_to(p, inner), distance_to(p, outer))) < 0.15,
+             "center": lambda p: np.median(distance_to(p, centre)) < 0.10}
+    sheets = [part for part in found["road"] if inside_share(centre[:: max(1, len(centre) // 20)], part[4]) > 0.8]
+    for kind, test in tests.items():
+        found[kind] = [part for part in found[kind] if test(part[4].reshape(-1, 3)[::7, :2])]
+    found["road"] = found["road"] or sheets
+
+
+def inside_share(points, tris):
+    """Share of ``points`` (P, 2) that lie in one of the triangles ``tris`` (T, 3, 3) seen from above."""
+    a, b, c = tris[None, :, 0, :2], tris[None, :, 1, :2], tris[None, :, 2, :2]
+    p = points[:, None, :]
+
+    def cross(u, v, w):
+        return (v[..., 0] - u[..., 0]) * (w[..., 1] - u[..., 1]) - (v[..., 1] - u[..., 1]) * (w[..., 0] - u[..., 0])
+    d1, d2, d3 = cross(a, b, p), cross(b, c, p), cross(c, a, p)
+    inside = ~(((d1 < 0) | (d2 < 0) | (d3 < 0)) & ((d1 > 0) | (d2 > 0) | (d3 > 0)))
+    return float(inside.any(axis=1).mean())
+
+
 def dash_pattern(tris, centre):
     """(dash length, gap) of a centre line made of separate quads, or (None, None) for a solid strip."""
     keys = np.round(tris.reshape(-1, 3)[:, :2], 4)
@@ -271,7 +311,9 @@ def world_lights(world_path, bundle):
                                   math.cos(yaw), math.sin(yaw))
         rot = np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
                         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], [-sp, cp * sr, cp * cr]])
-        entry = {"type": light.get("type"), "diffuse": _floats(light.findtext("diffuse") or "1 1 1")[:3].tolist()}
+        # Gazebo clamps colour components to 0..1 (Vegas_track's "64 64 64" is white).
+        diffuse = np.clip(_floats(light.findtext("diffuse") or "1 1 1")[:3], 0.0, 1.0)
+        entry = {"type": light.get("type"), "diffuse": diffuse.tolist()}
         if light.get("type") == "directional":
             entry["direction"] = (rot @ direction).round(4).tolist()
         else:
@@ -331,6 +373,7 @@ def derive_route(bundle, name):
             tex_path = os.path.normpath(os.path.join(os.path.dirname(mesh), texture)) if texture else None
             if kind is not None:
                 found[kind].append((node, material, tex_path, colour, tris, uv))
+    on_route(found, route)
     if not (found["road"] and found["border"] and found["center"]):
         return None, "road, border or centre line not recognised in the meshes"
     look = {kind: surface(found[kind], kind) for kind in ("road", "border", "center", "field")
@@ -339,6 +382,8 @@ def derive_route(bundle, name):
     centre_tris = np.concatenate([p[4] for p in found["center"]])
     look["center_width"] = round(strip_width(centre_tris), 4)
     dash, gap = dash_pattern(centre_tris, centre)
+    if not (0.005 < look["border_width"] < 0.3 and 0.005 < look["center_width"] < 0.3):
+        return None, f"implausible line widths {look['border_width']} / {look['center_width']} m"
     look["dash_length"], look["dash_gap"] = (round(dash, 4), round(gap, 4)) if dash else (None, 0.0)
     walls = found["wall"] or [p for p in found["scenery"] if p[4][..., 2].max() > 0.3]
     if walls:
@@ -350,7 +395,7 @@ def derive_route(bundle, name):
         everything = route.reshape(-1, 2)
         if found["wall"] and (lo < everything.min(0)).all() and (hi > everything.max(0)).all():
             wall["room"] = [round(float(v), 3) for v in (*lo, *hi)]
-        wall["scenery"] = not found["wall"]
+        wall["scenery"] = not found["wall"] or wall["height"] > 3.0  # buildings named "wall"
         look["wall"] = wall
     look["lights"], look["background"] = world_lights(world, bundle)
     return look, None
