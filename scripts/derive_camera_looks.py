@@ -34,111 +34,13 @@ import xml.etree.ElementTree as ET
 import numpy as np
 from PIL import Image
 
+from collada_reader import floats, read_collada  # scripts/collada_reader.py, beside this file
+
 GAZEBO_SUN = {"type": "directional", "diffuse": [0.8, 0.8, 0.8], "direction": [-0.5, 0.1, -0.9]}
 GAZEBO_BACKGROUND = [178, 178, 178]  # Gazebo classic's default background colour, 0.7 grey
 GAZEBO_SKY = [148, 176, 212]  # <sky/>: SkyX's sky is not in the files; a mid sky blue stands in
 STD_TEXEL = 0.005  # m: "std" is the grey standard deviation of the texture averaged over squares this wide
 KINDS = ("road", "border", "center", "field", "wall")
-
-
-def _floats(text):
-    return np.array(text.split(), dtype=np.float64) if text and text.strip() else np.zeros(0)
-
-
-def read_collada(path):
-    """[(node name, material name, texture path or None, diffuse rgba or None, tris (T,3,3), uv (T,3,2) or None)]."""
-    root = ET.parse(path).getroot()
-    ns = root.tag.split("}")[0] + "}" if root.tag.startswith("{") else ""
-    q = lambda tag: ns + tag
-    images = {im.get("id"): (im.findtext(".//" + q("init_from")) or "").strip() for im in root.iter(q("image"))}
-    effects = {}
-    for effect in root.iter(q("effect")):
-        params = {p.get("sid"): p for p in effect.iter(q("newparam"))}
-        texture, colour = None, None
-        diffuse = effect.find(".//" + q("diffuse"))
-        if diffuse is not None:
-            tex = diffuse.find(q("texture"))
-            if tex is not None:
-                name = tex.get("texture")
-                sampler = params.get(name)
-                source = sampler.findtext(".//" + q("source")) if sampler is not None else None
-                surface = params.get(source.strip()) if source else None
-                image = surface.findtext(".//" + q("init_from")).strip() if surface is not None else name
-                texture = images.get(image, image)
-            if diffuse.find(q("color")) is not None:
-                colour = _floats(diffuse.find(q("color")).text).tolist()
-        effects[effect.get("id")] = (texture, colour)
-    materials = {m.get("id"): effects.get(m.find(q("instance_effect")).get("url")[1:], (None, None))
-                 for m in root.iter(q("material"))}
-    geometries = {}
-    for geometry in root.iter(q("geometry")):
-        mesh = geometry.find(q("mesh"))
-        if mesh is None:
-            continue
-        sources = {s.get("id"): _floats(s.findtext(q("float_array"))) for s in mesh.findall(q("source"))}
-        vertices = {v.get("id"): v.find(q("input")).get("source")[1:] for v in mesh.findall(q("vertices"))}
-        parts = []
-        for prim in mesh:
-            tag = prim.tag[len(ns):]
-            if tag not in ("triangles", "polylist") or prim.find(q("p")) is None:
-                continue
-            inputs = prim.findall(q("input"))
-            stride = max(int(i.get("offset")) for i in inputs) + 1
-            p = np.array(prim.find(q("p")).text.split(), dtype=np.int64).reshape(-1, stride)
-            vin = [i for i in inputs if i.get("semantic") == "VERTEX"][0]
-            positions = sources[vertices[vin.get("source")[1:]]].reshape(-1, 3)[p[:, int(vin.get("offset"))]]
-            tin = [i for i in inputs if i.get("semantic") == "TEXCOORD"]
-            uv = None
-            if tin:
-                uvs = sources[tin[0].get("source")[1:]]
-                uv_stride = 3 if uvs.size % 3 == 0 and uvs.size % 2 != 0 else 2
-                uv = uvs.reshape(-1, uv_stride)[p[:, int(tin[0].get("offset"))], :2]
-            if tag == "polylist":
-                counts = np.array(prim.findtext(q("vcount")).split(), dtype=np.int64)
-                fan, start = [], 0
-                for n in counts:
-                    fan += [i for k in range(1, n - 1) for i in (start, start + k, start + k + 1)]
-                    start += n
-                positions = positions[fan]
-                uv = uv[fan] if uv is not None else None
-            parts.append((prim.get("material"), positions.reshape(-1, 3, 3),
-                          None if uv is None else uv.reshape(-1, 3, 2)))
-        geometries[geometry.get("id")] = parts
-    out = []
-
-    def walk(node, matrix):
-        for child in node:
-            tag = child.tag[len(ns):]
-            if tag == "matrix":
-                matrix = matrix @ _floats(child.text).reshape(4, 4)
-            elif tag == "translate":
-                step = np.eye(4)
-                step[:3, 3] = _floats(child.text)
-                matrix = matrix @ step
-            elif tag == "scale":
-                matrix = matrix @ np.diag(list(_floats(child.text)) + [1.0])
-            elif tag == "rotate":
-                x, y, z, angle = _floats(child.text)
-                c, s, axis = math.cos(math.radians(angle)), math.sin(math.radians(angle)), np.array([x, y, z])
-                axis = axis / (np.linalg.norm(axis) or 1.0)
-                k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-                step = np.eye(4)
-                step[:3, :3] = np.eye(3) * c + s * k + (1 - c) * np.outer(axis, axis)
-                matrix = matrix @ step
-        for inst in node.findall(q("instance_geometry")):
-            bind = {m.get("symbol"): m.get("target")[1:] for m in inst.iter(q("instance_material"))}
-            for material, tris, uv in geometries.get(inst.get("url")[1:], []):
-                name = bind.get(material, material)
-                texture, colour = materials.get(name, (None, None))
-                world = tris @ matrix[:3, :3].T + matrix[:3, 3]
-                out.append((node.get("name") or "", name or "", texture, colour, world, uv))
-        for child in node.findall(q("node")):
-            walk(child, matrix)
-
-    for scene in root.iter(q("visual_scene")):
-        for node in scene.findall(q("node")):
-            walk(node, np.eye(4))
-    return out
 
 
 def classify(node, material, texture):
@@ -303,16 +205,16 @@ def world_lights(world_path, bundle):
         if (include.findtext("uri") or "").strip() == "model://sun":
             lights.append(dict(GAZEBO_SUN))
     for light in root.iter("light"):
-        pose = _floats(light.findtext("pose") or "0 0 0 0 0 0")
+        pose = floats(light.findtext("pose") or "0 0 0 0 0 0")
         pose = np.concatenate([pose, np.zeros(6 - pose.size)])
-        direction = _floats(light.findtext("direction") or "0 0 -1")
+        direction = floats(light.findtext("direction") or "0 0 -1")
         roll, pitch, yaw = pose[3:6]
         cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch),
                                   math.cos(yaw), math.sin(yaw))
         rot = np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
                         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], [-sp, cp * sr, cp * cr]])
         # Gazebo clamps colour components to 0..1 (Vegas_track's "64 64 64" is white).
-        diffuse = np.clip(_floats(light.findtext("diffuse") or "1 1 1")[:3], 0.0, 1.0)
+        diffuse = np.clip(floats(light.findtext("diffuse") or "1 1 1")[:3], 0.0, 1.0)
         entry = {"type": light.get("type"), "diffuse": diffuse.tolist()}
         if light.get("type") == "directional":
             entry["direction"] = (rot @ direction).round(4).tolist()
@@ -329,7 +231,7 @@ def world_lights(world_path, bundle):
     if scene is not None and scene.find("sky") is not None:
         background = GAZEBO_SKY
     elif scene is not None and scene.findtext("background"):
-        background = [int(round(255 * v)) for v in _floats(scene.findtext("background"))[:3]]
+        background = [int(round(255 * v)) for v in floats(scene.findtext("background"))[:3]]
     return lights, background
 
 
