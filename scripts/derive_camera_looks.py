@@ -309,9 +309,15 @@ def main(argv=None):
     parser.add_argument("--commit", default="b7599b42", help="the simapp commit the bundle was taken from")
     parser.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "..", "laplab", "sensors", "data",
                                                       "camera_looks.json"))
+    parser.add_argument("--merge", nargs="+", metavar="ROUTE",
+                        help="derive only these routes and add them to --out, each marked with --commit "
+                             "(routes newer than the file's main commit)")
     args = parser.parse_args(argv)
     routes, skipped = {}, {}
-    for path in sorted(glob.glob(os.path.join(args.bundle, "routes", "*.npy"))):
+    paths = sorted(glob.glob(os.path.join(args.bundle, "routes", "*.npy")))
+    if args.merge:
+        paths = [os.path.join(args.bundle, "routes", f"{name}.npy") for name in args.merge]
+    for path in paths:
         name = os.path.basename(path)[:-4]
         try:
             look, why = derive_route(args.bundle, name)
@@ -321,10 +327,19 @@ def main(argv=None):
             skipped[name] = why
         else:
             routes[name] = look
+            if args.merge:
+                look["simapp_commit"] = args.commit
         print(f"{name}: {'ok' if look else why}", file=sys.stderr)
-    payload = {"source": f"aws-deepracer-community/deepracer-simapp@{args.commit} bundle/ (worlds, models, meshes); "
-                         "derived by scripts/derive_camera_looks.py",
-               "skipped": skipped, "routes": routes}
+    if args.merge:
+        with open(args.out, encoding="utf-8") as handle:
+            payload = json.load(handle)
+        payload["routes"].update(routes)
+        payload["skipped"].update(skipped)
+        routes = payload["routes"]
+    else:
+        payload = {"source": f"aws-deepracer-community/deepracer-simapp@{args.commit} bundle/ (worlds, models, "
+                             "meshes); derived by scripts/derive_camera_looks.py",
+                   "skipped": skipped, "routes": routes}
     with open(args.out, "w", encoding="utf-8") as handle:
         json.dump(payload, handle, separators=(",", ":"), sort_keys=True)
         handle.write("\n")
