@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from laplab.sensors.camera import FRONT_FACING_CAMERA, camera_rays, render_camera
-from laplab.sensors.look import DESIGN_LOOKS, look_for_track, simapp_looks, texture_for_track
+from laplab.sensors.look import DESIGN_LOOKS, LOOKS_FILE, look_for_track, simapp_looks, texture_for_track
 from laplab.sensors.randomize import RandomizationParams, build_randomized_texture, render_randomized, \
     sample_randomization
 from laplab.sensors.texture import luma601
@@ -111,8 +111,7 @@ def test_an_imported_route_gets_its_look_offline(tmp_path, monkeypatch):
     track = load_track("reInvent2019_wide_ccw")
     look = look_for_track(track)
     assert look.source == "deepracer-simapp" and look.notice is None
-    entry = json.loads((Path(__file__).resolve().parents[2] / "laplab" / "sensors" / "data"
-                        / "camera_looks.json").read_text())["routes"]["reInvent2019_wide_ccw"]
+    entry = json.loads(LOOKS_FILE.read_text())["routes"]["reInvent2019_wide_ccw"]
     assert look.params.room == pytest.approx(entry["wall"]["room"])
     assert look_for_track(track.reversed()).params == look.params  # name@reversed: the same world
 
@@ -170,3 +169,11 @@ def test_reinvent_base_frames_match_the_real_simulator_better_than_the_old_look(
     road_real = real[400:, :60].mean(axis=(0, 1))  # bottom-left corner: asphalt in dr-demo-1
     palette = look_for_track(reinvent_base()).params.palette
     assert np.abs(road_real - np.asarray(palette.road)).max() < 8
+
+
+def test_every_route_laplab_can_fetch_has_a_look_or_a_stated_reason():
+    from laplab.track.fetch import shipped_route_names
+    skipped = json.loads(LOOKS_FILE.read_text())["skipped"]
+    looks = simapp_looks()
+    assert [name for name in shipped_route_names() if name not in looks and name not in skipped] == []
+    assert len(looks) >= 120
