@@ -101,8 +101,19 @@ def _room(entry: dict, low: np.ndarray, high: np.ndarray, margin: float | None) 
     return (float(low[0] - margin), float(low[1] - margin), float(high[0] + margin), float(high[1] + margin))
 
 
-def params_from_entry(entry: dict, track, margin: float | None = None) -> TextureParams:
-    """TextureParams of one derived look for ``track``; ``margin`` (m) overrides the file's room."""
+def _dash_offset(entry: dict, track, reverse: bool) -> float:
+    """Where a dash starts along the track's centre line; driven the other way, where one ends."""
+    offset, dash, gap = entry.get("dash_offset") or 0.0, entry.get("dash_length"), entry.get("dash_gap") or 0.0
+    if not dash or not reverse:
+        return float(offset)
+    centre = route_arrays(track)[0]
+    length = float(np.linalg.norm(np.diff(centre, axis=0), axis=1).sum())
+    return float((length - offset - dash) % (dash + gap))
+
+
+def params_from_entry(entry: dict, track, margin: float | None = None, reverse: bool = False) -> TextureParams:
+    """TextureParams of one derived look for ``track``; ``margin`` (m) overrides the file's room;
+    ``reverse``: the track is the route driven the other way (its centre line runs backwards)."""
     low, high = _extent(track)
     room = _room(entry, low, high, margin)
     lights = _lights(entry) or (Light("directional", (0.8, 0.8, 0.8), (-0.5, 0.1, -0.9)),)
@@ -126,19 +137,21 @@ def params_from_entry(entry: dict, track, margin: float | None = None) -> Textur
     dash, gap = entry.get("dash_length"), entry.get("dash_gap") or 0.0
     return TextureParams(border_line_width=entry["border_width"], center_line_width=entry["center_width"],
                          dash_length=dash if dash else 1.0, dash_gap=gap if dash else 0.0,
+                         dash_offset=_dash_offset(entry, track, reverse),
                          wall_height=float(wall_height), palette=palette, room=room, wall_lights=wall_lights)
 
 
 def look_for_track(track, name: str | None = None) -> CameraLook:
     """The look of ``track`` (a Track, or an (N, 6) route with ``name``), chosen by its route name."""
-    name = route_name(name if name is not None else getattr(track, "name", ""))
+    full = name if name is not None else getattr(track, "name", "")
+    name, reverse = route_name(full), full.endswith("@reversed")
     looks = simapp_looks()
     if name in DESIGN_LOOKS:
         route, margin = DESIGN_LOOKS[name]
         return CameraLook(name, f"laplab design in DeepRacer's style ({route}'s materials and lights)",
                           params_from_entry(looks[route], track, margin))
     if name in looks:
-        return CameraLook(name, "deepracer-simapp", params_from_entry(looks[name], track))
+        return CameraLook(name, "deepracer-simapp", params_from_entry(looks[name], track, reverse=reverse))
     notice = (f"laplab: no DeepRacer camera look for route {name or '(unnamed)'!r}; using the default look "
               f"({DEFAULT_ROUTE}'s materials)")
     return CameraLook(name, "default", params_from_entry(looks[DEFAULT_ROUTE], track, 1.5), notice)

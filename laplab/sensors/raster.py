@@ -59,10 +59,11 @@ def _fill_even_odd(edges, width, height):
 
 
 @njit(cache=True)
-def _stamp_polyline(classes, points, half_width, replace_from, new_class, period, dash_length):
+def _stamp_polyline(classes, points, half_width, replace_from, new_class, period, dash_length, offset):
     """Set texels of ``classes`` whose centre lies within ``half_width`` of the polyline ``points``
     (M, 2) (all in texel units) and whose class is in ``replace_from`` to ``new_class``. With
-    ``period`` > 0 only where the arc length of the nearest point mod ``period`` < ``dash_length``."""
+    ``period`` > 0 only where (the arc length of the nearest point - ``offset``) mod ``period`` <
+    ``dash_length``."""
     height, width = classes.shape
     s0 = 0.0
     for i in range(points.shape[0] - 1):
@@ -82,7 +83,7 @@ def _stamp_polyline(classes, points, half_width, replace_from, new_class, period
                 ex, ey = px - (ax + t * dx), py - (ay + t * dy)
                 if ex * ex + ey * ey >= half_width * half_width:
                     continue
-                if period <= 0.0 or (s0 + t * seg_len) % period < dash_length:
+                if period <= 0.0 or (s0 + t * seg_len - offset) % period < dash_length:
                     classes[row, col] = new_class
         s0 += seg_len
 
@@ -101,9 +102,11 @@ def _class_band(centre, inner, outer, origin, step, width, height, params) -> np
         edges = _ring_edges(to_cells(np.vstack([inner, outer[::-1]])))
     classes = np.where(_fill_even_odd(edges, width, height) > 0, ROAD, FLOOR).astype(np.uint8)
     period, dash = (params.dash_length + params.dash_gap) / step, params.dash_length / step
-    _stamp_polyline(classes, to_cells(centre), 0.5 * params.center_line_width / step, (ROAD,), CENTER, period, dash)
+    _stamp_polyline(classes, to_cells(centre), 0.5 * params.center_line_width / step, (ROAD,), CENTER, period, dash,
+                    params.dash_offset / step)
     for border in (inner, outer):  # tape inside the road along each border, over the centre line
-        _stamp_polyline(classes, to_cells(border), params.border_line_width / step, (ROAD, CENTER), BORDER, 0.0, 0.0)
+        _stamp_polyline(classes, to_cells(border), params.border_line_width / step, (ROAD, CENTER), BORDER, 0.0, 0.0,
+                        0.0)
     return classes
 
 

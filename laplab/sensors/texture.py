@@ -77,8 +77,8 @@ class TextureParams:
 
     ``border_line_width`` white tape lies inside the road along both borders; the centre line is
     ``center_line_width`` wide, ``dash_length`` on / ``dash_gap`` off along the centre line's arc
-    length. Walls are ``wall_height`` high with a dark seam every ``panel_width`` and a skirting board
-    ``skirting_height`` high. Each texel's colour mixes the classes over ``antialias`` x ``antialias``
+    length, a dash starting ``dash_offset`` m from its first point. Walls are ``wall_height`` high with
+    a dark seam every ``panel_width`` and a skirting board ``skirting_height`` high. Each texel's colour mixes the classes over ``antialias`` x ``antialias``
     sample points (smooth tape edges; 1 = one sample at the texel centre). ``seed`` fixes the grain.
     ``room`` (x_min, y_min, x_max, y_max), m, places the walls (it must hold the track); None puts them
     ``margin`` beyond the track's bounding box. With ``wall_lights`` (a tuple of
@@ -92,6 +92,7 @@ class TextureParams:
     center_line_width: float = 0.04
     dash_length: float = 0.15
     dash_gap: float = 0.15
+    dash_offset: float = 0.0
     wall_height: float = 0.8
     wall_texel_size: float = 0.02
     panel_width: float = 1.2
@@ -111,7 +112,7 @@ class TextureParams:
                 raise ValueError(f"TextureParams.{name} must be a positive number of metres, got {value!r}")
         if not (isinstance(self.antialias, int) and 1 <= self.antialias <= 15):
             raise ValueError(f"TextureParams.antialias must be an integer in 1..15, got {self.antialias!r}")
-        for name in ("dash_gap", "seam_width", "skirting_height"):
+        for name in ("dash_gap", "dash_offset", "seam_width", "skirting_height"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"TextureParams.{name} must be a number of metres >= 0, got {value!r}")

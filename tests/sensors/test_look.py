@@ -4,6 +4,7 @@ without network, the default look's notice, the grey conversion, and randomisati
 import json
 import logging
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -70,15 +71,15 @@ def test_a_rendered_reinvent_base_frame_shows_the_simapp_colours_at_known_pixels
         gap = np.where(rays.hits_ground, np.hypot(rays.ground_x - forward, rays.ground_y - left), np.inf)
         assert gap.min() < 0.05, "the point is out of view"  # rows are ~3 cm apart at 1.5 m
         return divmod(int(np.argmin(gap)), camera.width)
-    # Road between the centre line and the right tape; the dash phase is unknown, so the centre line
-    # is checked as the most orange pixel along its column; tape 0.34 m right; field 0.75 m right.
+    # Road between the centre line and the right tape; tape 0.34 m right; field 0.75 m right.
     grain = 3 * 6.1 * FLOOR_GAIN  # three standard deviations of the road texture's 5 mm grain
     assert np.abs(frame[pixel(1.0, -0.2)] - lit("road")).max() < grain
     assert np.abs(frame[pixel(1.3, -0.343)] - lit("border")).max() < 3 * 14.2 * FLOOR_GAIN
     assert np.abs(frame[pixel(1.6, -0.75)] - lit("field")).max() < 3 * 8.8 * FLOOR_GAIN
-    column = frame[pixel(0.6, 0.0)[0]:pixel(0.35, 0.0)[0] + 1, pixel(0.5, 0.0)[1]]
-    orange = column[np.argmax(column[:, 0] - column[:, 2])]
-    assert np.abs(orange - lit("center")).max() < 12
+    # The dashes (2 in on, 2 in off) start 0.0527 m along the centre line, whose row 0 is at x = 3.06:
+    # the fourth runs over x 3.4175..3.4683 (0.443 m ahead of the car at x = 3.0), a gap follows.
+    assert np.abs(frame[pixel(0.443, 0.0)] - lit("center")).max() < 12
+    assert np.abs(frame[pixel(0.494, 0.0)] - lit("road")).max() < grain
     row = 15  # ~5 degrees above the horizon: the east wall ~0.6 m up, 5.6 m ahead
     up = math.atan((0.5 * camera.height - row - 0.5) / camera.focal_length) - camera.pitch
     east = np.array([8.575, y0, camera.mount_up + (8.575 - x0 - camera.mount_forward) * math.tan(up)])
@@ -113,7 +114,13 @@ def test_an_imported_route_gets_its_look_offline(tmp_path, monkeypatch):
     assert look.source == "deepracer-simapp" and look.notice is None
     entry = json.loads(LOOKS_FILE.read_text())["routes"]["reInvent2019_wide_ccw"]
     assert look.params.room == pytest.approx(entry["wall"]["room"])
-    assert look_for_track(track.reversed()).params == look.params  # name@reversed: the same world
+    backwards = look_for_track(track.reversed()).params  # name@reversed: the same world, dashes from the end
+    assert replace(backwards, dash_offset=look.params.dash_offset) == look.params
+    period = look.params.dash_length + look.params.dash_gap
+    length = float(np.linalg.norm(np.diff(track.centerline, axis=0), axis=1).sum())
+    ends = (look.params.dash_offset + look.params.dash_length) % period  # a dash ends here, forwards ...
+    wrap = (length - backwards.dash_offset - ends) % period  # ... and one starts here backwards
+    assert min(wrap, period - wrap) < 1e-9
 
 
 def test_an_unknown_route_gets_the_default_look_and_says_so(caplog):
