@@ -36,7 +36,7 @@ from laplab.track.registry import load_track
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 CANDIDATES = ("reinvent_base", "reInvent2019_track", "reInvent2019_wide")
-VIEW = FRONT_FACING_CAMERA.with_(width=240, height=180, supersample=2, grayscale=False)
+VIEW = FRONT_FACING_CAMERA.with_(width=240, height=180, supersample=2, bilinear=True, grayscale=False)
 
 
 def real_grey(path: Path) -> tuple[np.ndarray, np.ndarray]:
