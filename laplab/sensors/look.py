@@ -157,12 +157,23 @@ def look_for_track(track, name: str | None = None) -> CameraLook:
     return CameraLook(name, "default", params_from_entry(looks[DEFAULT_ROUTE], track, 1.5), notice)
 
 
+_announced: set[str] = set()
+
+
+def announced_look(track, name: str | None = None) -> CameraLook:
+    """:func:`look_for_track`, logging a default look's notice (one line on the ``laplab.camera``
+    logger, once per route name and process)."""
+    look = look_for_track(track, name)
+    if look.notice and look.route not in _announced:
+        _announced.add(look.route)
+        log.warning(look.notice)
+    return look
+
+
 def texture_for_track(track, name: str | None = None, extra_palettes: tuple[TexturePalette, ...] = (),
                       **changes) -> TrackTexture:
     """:func:`build_track_texture` with the track's look (``changes`` override TextureParams fields);
-    logs the look's notice (one line, on the ``laplab.camera`` logger) when it is a default."""
-    look = look_for_track(track, name)
-    if look.notice:
-        log.warning(look.notice)
+    a default look's notice is logged (:func:`announced_look`)."""
+    look = announced_look(track, name)
     params = replace(look.params, **changes) if changes else look.params
     return build_track_texture(track, params, extra_palettes=extra_palettes)
