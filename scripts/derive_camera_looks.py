@@ -217,8 +217,10 @@ def world_lights(world_path, bundle):
                                   math.cos(yaw), math.sin(yaw))
         rot = np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
                         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], [-sp, cp * sr, cp * cr]])
-        # Gazebo clamps colour components to 0..1 (Vegas_track's "64 64 64" is white).
-        diffuse = np.clip(floats(light.findtext("diffuse") or "1 1 1")[:3], 0.0, 1.0)
+        # Gazebo reads colours as ignition::math::Color, whose Clamp() takes a component above 1 as a
+        # 0..255 value (the city worlds' "64 64 64" is 0.25) and one below 0 as 0.
+        diffuse = floats(light.findtext("diffuse") or "1 1 1")[:3]
+        diffuse = np.round(np.clip(np.where(diffuse > 1.0, diffuse / 255.0, diffuse), 0.0, 1.0), 4)
         entry = {"type": light.get("type"), "diffuse": diffuse.tolist()}
         if light.get("type") == "directional":
             entry["direction"] = (rot @ direction).round(4).tolist()
