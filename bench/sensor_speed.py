@@ -76,15 +76,37 @@ def poses_on_track(route: np.ndarray, n: int, rng: np.random.Generator) -> np.nd
     return np.column_stack([route[rows, 0:2] + rng.normal(0.0, 0.1, (n, 2)), yaw])
 
 
+def cpu_seconds_per_call(call: Callable[[], object], runs: int, seconds: float) -> float:
+    """Median CPU seconds of this process per call, on one thread (what a loaded host cannot steal)."""
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        call()
+        results = []
+        for _ in range(runs):
+            count, start = 0, time.process_time()
+            while time.process_time() - start < seconds:
+                call()
+                count += 1
+            results.append((time.process_time() - start) / count)
+        return float(np.median(results))
+    finally:
+        numba.set_num_threads(threads)
+
+
 def look_rows(route: np.ndarray, name: str, runs: int, seconds: float) -> list[Row]:
-    """The default 160x120 grey camera at N = 64 on laplab's old look and on the track's look."""
+    """The default 160x120 grey camera at N = 64 on laplab's old look and on the track's look; also
+    prints frames per CPU-second on one thread (a figure the other processes of a busy host barely
+    move)."""
     rows = []
     for label, texture in (("old look (panelled room)", build_track_texture(route)),
                            (f"{name}'s look", texture_for_track(route, name=name))):
         poses = poses_on_track(route, 64, np.random.default_rng(0))
         out = np.empty((64, FRONT_FACING_CAMERA.height, FRONT_FACING_CAMERA.width), np.uint8)
-        threaded, one_core = threaded_and_one_core(lambda: render_camera(texture, poses, out=out), runs, seconds)
+        call = lambda: render_camera(texture, poses, out=out)
+        threaded, one_core = threaded_and_one_core(call, runs, seconds)
         rows.append(Row("camera", f"160x120 grey, {label}", 64, 64 / threaded, 1e6 * threaded, 64 / one_core))
+        print(f"{label}: {64 / cpu_seconds_per_call(call, runs, seconds):,.0f} frames per CPU-second, one thread")
     return rows
 
 
