@@ -40,7 +40,7 @@ DESIGN_LOOKS: dict[str, tuple[str, float]] = {
     "grand_tour": ("2022_april_pro_ccw", 0.8),
 }
 MAX_ROOM_MARGIN = 5.0  # m: walls farther from the track than this are brought in (texture size)
-OPEN_MARGIN = 5.0      # m: worlds without walls: field this far beyond the track, then the horizon
+OPEN_MARGIN = 3.0      # m: worlds without walls: field this far beyond the track, then the sky
 SCENERY_HEIGHT = 2.0   # m: grandstands and buildings stand in as walls at most this high
 log = logging.getLogger("laplab.camera")
 
