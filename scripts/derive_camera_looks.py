@@ -135,8 +135,7 @@ def on_route(found, route):
     """Keep the road, line and centre parts that lie where the route says they are: the road within
     the route's half width (+5 cm) of the centre line, tape within 15 cm of a border, centre line
     within 10 cm of the centre line (median over a part's vertices); a road may also be one sheet under
-    the whole route (the carpet, concrete and wood worlds). City worlds name other meshes "road" or
-    "track"; this drops them."""
+    the whole route. City worlds name other meshes "road" or "track"; this drops them."""
     centre, inner, outer = route[:, 0:2], route[:, 2:4], route[:, 4:6]
     half = 0.5 * float(np.median(np.linalg.norm(inner - outer, axis=1)))
     tests = {"road": lambda p: np.median(distance_to(p, centre)) < half + 0.05,
@@ -145,7 +144,10 @@ def on_route(found, route):
     sheets = [part for part in found["road"] if inside_share(centre[:: max(1, len(centre) // 20)], part[4]) > 0.8]
     for kind, test in tests.items():
         found[kind] = [part for part in found[kind] if test(part[4].reshape(-1, 3)[::7, :2])]
-    found["road"] = found["road"] or sheets
+    # Failing those, what lies under the route is the field (the carpet, concrete and wood worlds: the
+    # field and the road share one texture, and their road mesh lies elsewhere).
+    under = [part for part in found["field"] if inside_share(centre[:: max(1, len(centre) // 20)], part[4]) > 0.8]
+    found["road"] = found["road"] or sheets or under
 
 
 def inside_share(points, tris):
