@@ -76,37 +76,42 @@ def poses_on_track(route: np.ndarray, n: int, rng: np.random.Generator) -> np.nd
     return np.column_stack([route[rows, 0:2] + rng.normal(0.0, 0.1, (n, 2)), yaw])
 
 
-def cpu_seconds_per_call(call: Callable[[], object], runs: int, seconds: float) -> float:
-    """Median CPU seconds of this process per call, on one thread (what a loaded host cannot steal)."""
+def interleaved_cpu_rates(calls: dict[str, Callable[[], object]], frames: int, runs: int,
+                          seconds: float) -> dict[str, tuple[float, float]]:
+    """(median, best) frames per CPU-second of this process on one thread for each call, the calls
+    taking turns in ``seconds``-long slices ``runs`` times (what a loaded host cannot steal, and a
+    slowdown of the host hits every call alike)."""
     threads = numba.get_num_threads()
     numba.set_num_threads(1)
+    rates: dict[str, list[float]] = {name: [] for name in calls}
     try:
-        call()
-        results = []
+        for call in calls.values():
+            call()
         for _ in range(runs):
-            count, start = 0, time.process_time()
-            while time.process_time() - start < seconds:
-                call()
-                count += 1
-            results.append((time.process_time() - start) / count)
-        return float(np.median(results))
+            for name, call in calls.items():
+                count, start = 0, time.process_time()
+                while time.process_time() - start < seconds:
+                    call()
+                    count += 1
+                rates[name].append(frames * count / (time.process_time() - start))
     finally:
         numba.set_num_threads(threads)
+    return {name: (float(np.median(r)), float(np.max(r))) for name, r in rates.items()}
 
 
 def look_rows(route: np.ndarray, name: str, runs: int, seconds: float) -> list[Row]:
     """The default 160x120 grey camera at N = 64 on laplab's old look and on the track's look; also
-    prints frames per CPU-second on one thread (a figure the other processes of a busy host barely
-    move)."""
-    rows = []
+    prints frames per CPU-second on one thread, the looks taking turns."""
+    rows, calls = [], {}
+    poses = poses_on_track(route, 64, np.random.default_rng(0))
+    out = np.empty((64, FRONT_FACING_CAMERA.height, FRONT_FACING_CAMERA.width), np.uint8)
     for label, texture in (("old look (panelled room)", build_track_texture(route)),
                            (f"{name}'s look", texture_for_track(route, name=name))):
-        poses = poses_on_track(route, 64, np.random.default_rng(0))
-        out = np.empty((64, FRONT_FACING_CAMERA.height, FRONT_FACING_CAMERA.width), np.uint8)
-        call = lambda: render_camera(texture, poses, out=out)
+        call = calls[label] = (lambda t: lambda: render_camera(t, poses, out=out))(texture)
         threaded, one_core = threaded_and_one_core(call, runs, seconds)
         rows.append(Row("camera", f"160x120 grey, {label}", 64, 64 / threaded, 1e6 * threaded, 64 / one_core))
-        print(f"{label}: {64 / cpu_seconds_per_call(call, runs, seconds):,.0f} frames per CPU-second, one thread")
+    for label, (median, best) in interleaved_cpu_rates(calls, 64, runs, seconds).items():
+        print(f"{label}: {median:,.0f} frames per CPU-second on one thread (median; best {best:,.0f}), interleaved")
     return rows
 
 
