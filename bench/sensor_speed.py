@@ -1,6 +1,6 @@
 """Sensor throughput on a real DeepRacer track, against Gymnasium's CarRacing-v3 as the peer.
 
-    python3 bench/sensor_speed.py [--track reinvent_base] [--runs 7] [--seconds 0.5]
+    python3 bench/sensor_speed.py [--track reinvent_base] [--runs 7] [--seconds 0.5] [--look-only]
 
 One function per sensor returns table rows; ``main`` prints them. For every configuration and
 batch size N the figure is the median over ``runs`` runs (each run repeats the call for at least
@@ -8,7 +8,9 @@ batch size N the figure is the median over ``runs`` runs (each run repeats the c
 160x120 frame always render on one thread). The peer is CarRacing-v3's env.step per second (it renders
 its 96x96 observation every step); the last column is the ratio. Goal for the camera: >= 20,000
 frames/s at N = 64 for the default 160x120 grey camera on 2 cores. Threaded figures collapse when
-other processes load the cores: check ``uptime`` first.
+other processes load the cores: check ``uptime`` first. The camera renders the track's look
+(laplab.sensors.look); ``--look-only`` measures just the default camera at N = 64 with laplab's old
+look (the panelled room) and with the track's look, in the same run.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ import numpy as np
 
 from laplab.sensors.camera import (FRONT_FACING_CAMERA, HUMAN_CAMERA, STEREO_CAMERAS, render_camera,
                                    render_cameras)
+from laplab.sensors.look import texture_for_track
 from laplab.sensors.texture import build_track_texture
 
 TRACKS = Path(__file__).resolve().parents[1].parent / "shared" / "reference-tracks"
@@ -73,12 +76,51 @@ def poses_on_track(route: np.ndarray, n: int, rng: np.random.Generator) -> np.nd
     return np.column_stack([route[rows, 0:2] + rng.normal(0.0, 0.1, (n, 2)), yaw])
 
 
-def camera_rows(route: np.ndarray, runs: int, seconds: float) -> list[Row]:
+def interleaved_cpu_rates(calls: dict[str, Callable[[], object]], frames: int, runs: int,
+                          seconds: float) -> dict[str, tuple[float, float]]:
+    """(median, best) frames per CPU-second of this process on one thread for each call, the calls
+    taking turns in ``seconds``-long slices ``runs`` times (what a loaded host cannot steal, and a
+    slowdown of the host hits every call alike)."""
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    rates: dict[str, list[float]] = {name: [] for name in calls}
+    try:
+        for call in calls.values():
+            call()
+        for _ in range(runs):
+            for name, call in calls.items():
+                count, start = 0, time.process_time()
+                while time.process_time() - start < seconds:
+                    call()
+                    count += 1
+                rates[name].append(frames * count / (time.process_time() - start))
+    finally:
+        numba.set_num_threads(threads)
+    return {name: (float(np.median(r)), float(np.max(r))) for name, r in rates.items()}
+
+
+def look_rows(route: np.ndarray, name: str, runs: int, seconds: float) -> list[Row]:
+    """The default 160x120 grey camera at N = 64 on laplab's old look and on the track's look; also
+    prints frames per CPU-second on one thread, the looks taking turns."""
+    rows, calls = [], {}
+    poses = poses_on_track(route, 64, np.random.default_rng(0))
+    out = np.empty((64, FRONT_FACING_CAMERA.height, FRONT_FACING_CAMERA.width), np.uint8)
+    for label, texture in (("old look (panelled room)", build_track_texture(route)),
+                           (f"{name}'s look", texture_for_track(route, name=name))):
+        call = calls[label] = (lambda t: lambda: render_camera(t, poses, out=out))(texture)
+        threaded, one_core = threaded_and_one_core(call, runs, seconds)
+        rows.append(Row("camera", f"160x120 grey, {label}", 64, 64 / threaded, 1e6 * threaded, 64 / one_core))
+    for label, (median, best) in interleaved_cpu_rates(calls, 64, runs, seconds).items():
+        print(f"{label}: {median:,.0f} frames per CPU-second on one thread (median; best {best:,.0f}), interleaved")
+    return rows
+
+
+def camera_rows(route: np.ndarray, runs: int, seconds: float, name: str = "") -> list[Row]:
     """Camera frames/s: 160x120 grey with the default anti-aliasing (mip levels), none, bilinear
     magnification, 2x2 supersampling, the stereo pair (one observation = two frames) and the 640x480
     RGB human view (2x2 supersampled, bilinear)."""
     start = time.perf_counter()
-    texture = build_track_texture(route)
+    texture = texture_for_track(route, name=name)
     print(f"camera texture: {texture.width}x{texture.height} texels of {texture.texel_size} m, "
           f"{texture.num_levels} mip levels, built in {time.perf_counter() - start:.2f} s")
     rng = np.random.default_rng(0)
@@ -169,12 +211,16 @@ def main() -> None:
     parser.add_argument("--track", default="reinvent_base", help="route name in ../shared/reference-tracks")
     parser.add_argument("--runs", type=int, default=7, help="runs per figure (the median is printed)")
     parser.add_argument("--seconds", type=float, default=0.5, help="minimum duration of one run")
+    parser.add_argument("--look-only", action="store_true", help="only the camera at N = 64, old look vs new")
     args = parser.parse_args()
     route = np.load(TRACKS / f"{args.track}.npy")
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"track {args.track}; numba threads {numba.get_num_threads()}; load average {load:.2f} "
           f"on {os.cpu_count()} cores")
-    rows = camera_rows(route, args.runs, args.seconds) + lidar_rows(route, args.runs, args.seconds)
+    if args.look_only:
+        print_table(look_rows(route, args.track, args.runs, args.seconds), None)
+        return
+    rows = camera_rows(route, args.runs, args.seconds, args.track) + lidar_rows(route, args.runs, args.seconds)
     rows += camera_env_rows(args.runs, args.seconds)
     peer = carracing_steps_per_second(args.runs, args.seconds)
     print_table(rows, peer)

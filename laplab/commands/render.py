@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     from laplab.sensors.camera import HUMAN_CAMERA, camera_for_sensor, render_camera, render_cameras
     from laplab.sensors.lidar import DEFAULT_LIDAR, LidarWalls, scan
     from laplab.sensors.render import draw_lidar_polar, draw_topdown
-    from laplab.sensors.texture import build_track_texture
+    from laplab.sensors.look import texture_for_track
     from laplab.track.registry import DEFAULT_TRACK, load_track
 
     sensors = args.sensor or ["FRONT_FACING_CAMERA", "LIDAR"]
@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     save(draw_topdown(track, pose, lidar_ranges=lidar_ranges), "topdown")
     cameras = [s for s in sensors if s in CAMERA_SENSORS]
     if cameras:
-        texture = build_track_texture(track)
+        texture = texture_for_track(track)
         for sensor in cameras:
             frames = render_cameras(texture, pose, camera_for_sensor(sensor))[0]
             for channel in range(frames.shape[-1]):

@@ -81,11 +81,11 @@ class ObservationBuilder:
     def _camera_reader(self, sensor: str, box: gym.spaces.Box) -> Reader:
         from laplab.sensors.camera import camera_for_sensor, render_cameras
         from laplab.sensors.randomize import build_randomized_texture, render_randomized, sample_randomization
-        from laplab.sensors.texture import TextureParams, build_track_texture
+        from laplab.sensors.look import announced_look, texture_for_track
         cameras = camera_for_sensor(sensor)
         rand, rng = self.randomization, self._camera_rng
-        texture = (build_track_texture(self.sim.track) if rand is None
-                   else build_randomized_texture(self.sim.track, TextureParams(), rand, rng))
+        texture = (texture_for_track(self.sim.track) if rand is None
+                   else build_randomized_texture(self.sim.track, announced_look(self.sim.track).params, rand, rng))
 
         def render(poses_now: np.ndarray) -> np.ndarray:  # (K, H, W, cameras) uint8
             if rand is None:

@@ -44,6 +44,6 @@ class FrameRenderer:
             return draw_topdown(self.sim.track, poses)
         from laplab.sensors.camera import HUMAN_CAMERA, render_camera
         if self._texture is None:
-            from laplab.sensors.texture import build_track_texture
-            self._texture = build_track_texture(self.sim.track)
+            from laplab.sensors.look import texture_for_track
+            self._texture = texture_for_track(self.sim.track)
         return render_camera(self._texture, poses[self.car:self.car + 1], HUMAN_CAMERA)[0]

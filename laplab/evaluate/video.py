@@ -58,8 +58,8 @@ def write_trial_video(path: str | Path, result, trial: int = 0, camera: bool = T
     frames = None
     if camera:
         from laplab.sensors.camera import FRONT_FACING_CAMERA, render_camera
-        from laplab.sensors.texture import build_track_texture
-        frames = render_camera(build_track_texture(track), poses, FRONT_FACING_CAMERA)
+        from laplab.sensors.look import texture_for_track
+        frames = render_camera(texture_for_track(track), poses, FRONT_FACING_CAMERA)
     start = result.trials[trial].start_time
     overlays = {"speed": columns["throttle"], "steering": columns["steer"], "progress": columns["progress"],
                 "time": [f"{t - start:.2f} s" for t in columns["tstamp"]],

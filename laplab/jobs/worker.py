@@ -94,8 +94,8 @@ class LiveFeed:
             self._last_camera_time = now
             from laplab.sensors.camera import render_camera
             if self._texture is None:
-                from laplab.sensors.texture import build_track_texture
-                self._texture = build_track_texture(self.track)
+                from laplab.sensors.look import texture_for_track
+                self._texture = texture_for_track(self.track)
             self.files.write_camera(render_camera(self._texture, frame.poses[:1], self.camera)[0])
 
 

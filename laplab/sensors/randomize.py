@@ -16,7 +16,7 @@ With ``RandomizationParams(enabled=False)`` (the default) every draw is the iden
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import NamedTuple
 
@@ -87,11 +87,13 @@ def random_palettes(rng: np.random.Generator, count: int, base: TexturePalette =
         shade = rng.uniform(-spread, spread) + rng.uniform(-spread / 3, spread / 3, size=3)
         return tuple(int(v) for v in np.clip(np.rint(np.asarray(colour) + shade), 0, 255))
 
-    floors = [(112, 124, 100), (120, 120, 118), (96, 112, 82), (126, 110, 92), (88, 96, 110), (150, 150, 140)]
+    floors = [base.floor, (112, 124, 100), (120, 120, 118), (96, 112, 82), (126, 110, 92), (88, 96, 110),
+              (150, 150, 140)]
     palettes = []
     for _ in range(count):
-        palettes.append(TexturePalette(
-            road=jitter(base.road, 18), border=jitter(base.border, 15), center=jitter(base.center, 20),
+        # replace() keeps the base's other fields (the tape's grain), so a DeepRacer look stays one.
+        palettes.append(replace(
+            base, road=jitter(base.road, 18), border=jitter(base.border, 15), center=jitter(base.center, 20),
             floor=jitter(floors[int(rng.integers(len(floors)))], 20), wall=jitter(base.wall, 30),
             wall_seam=jitter(base.wall_seam, 20), skirting=jitter(base.skirting, 20), sky=jitter(base.sky, 25),
             grain=float(rng.uniform(0.0, 2.0 * base.grain + 2.0))))

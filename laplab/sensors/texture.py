@@ -20,7 +20,9 @@ from functools import cached_property
 import numpy as np
 from numba import njit
 
-FLOOR, ROAD, BORDER, CENTER = 0, 1, 2, 3  # texel classes of the class map
+from laplab.sensors.raster import BORDER, CENTER, FLOOR, ROAD, rasterise_track_coverage, route_arrays  # noqa: F401
+from laplab.sensors.walls import paint_walls
+
 MIN_MIP_SIZE = 4  # stop building mip levels when a side would drop below this many texels
 
 
@@ -36,7 +38,8 @@ class TexturePalette:
 
     The defaults imitate the DeepRacer simulator: a near-black asphalt mat, white border tape, a
     yellow dashed centre line, a grey-green carpet around it, light grey wall panels and a pale sky.
-    ``grain`` is the standard deviation (grey levels) of fixed per-texel noise on road and floor.
+    ``grain`` is the standard deviation (grey levels) of fixed per-texel noise on the road, and on the
+    floor unless ``floor_grain`` is given; ``border_grain`` and ``center_grain`` add noise to the tape.
     """
 
     road: tuple[int, int, int] = (40, 40, 43)
@@ -48,14 +51,24 @@ class TexturePalette:
     skirting: tuple[int, int, int] = (84, 84, 88)
     sky: tuple[int, int, int] = (206, 215, 226)
     grain: float = 2.0
+    floor_grain: float | None = None
+    border_grain: float = 0.0
+    center_grain: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("road", "border", "center", "floor", "wall", "wall_seam", "skirting", "sky"):
             value = getattr(self, name)
             if len(value) != 3 or not all(isinstance(v, (int, np.integer)) and 0 <= v <= 255 for v in value):
                 raise ValueError(f"TexturePalette.{name} must be three integers in 0..255 (RGB), got {value!r}")
-        if not (math.isfinite(self.grain) and self.grain >= 0):
-            raise ValueError(f"TexturePalette.grain must be a finite number >= 0, got {self.grain!r}")
+        for name in ("grain", "floor_grain", "border_grain", "center_grain"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"TexturePalette.{name} must be a finite number >= 0, got {value!r}")
+
+    def grains(self) -> np.ndarray:
+        """(4,) float32 grain of FLOOR, ROAD, BORDER and CENTER texels."""
+        floor = self.grain if self.floor_grain is None else self.floor_grain
+        return np.array([floor, self.grain, self.border_grain, self.center_grain], dtype=np.float32)
 
 
 @dataclass(frozen=True)
@@ -64,9 +77,13 @@ class TextureParams:
 
     ``border_line_width`` white tape lies inside the road along both borders; the centre line is
     ``center_line_width`` wide, ``dash_length`` on / ``dash_gap`` off along the centre line's arc
-    length. Walls are ``wall_height`` high with a dark seam every ``panel_width`` and a skirting board
-    ``skirting_height`` high. Each texel's colour mixes the classes over ``antialias`` x ``antialias``
+    length, a dash starting ``dash_offset`` m from its first point. Walls are ``wall_height`` high with
+    a dark seam every ``panel_width`` and a skirting board ``skirting_height`` high. Each texel's colour mixes the classes over ``antialias`` x ``antialias``
     sample points (smooth tape edges; 1 = one sample at the texel centre). ``seed`` fixes the grain.
+    ``room`` (x_min, y_min, x_max, y_max), m, places the walls (it must hold the track); None puts them
+    ``margin`` beyond the track's bounding box. With ``wall_lights`` (a tuple of
+    :class:`laplab.sensors.walls.Light`) the walls are plain ``palette.wall`` shaded by those lights, as
+    in DeepRacer's worlds; without, laplab's panelled walls.
     """
 
     texel_size: float = 0.005
@@ -75,6 +92,7 @@ class TextureParams:
     center_line_width: float = 0.04
     dash_length: float = 0.15
     dash_gap: float = 0.15
+    dash_offset: float = 0.0
     wall_height: float = 0.8
     wall_texel_size: float = 0.02
     panel_width: float = 1.2
@@ -83,6 +101,8 @@ class TextureParams:
     antialias: int = 4
     seed: int = 0
     palette: TexturePalette = field(default_factory=TexturePalette)
+    room: tuple[float, float, float, float] | None = None
+    wall_lights: tuple = ()
 
     def __post_init__(self) -> None:
         for name in ("texel_size", "margin", "border_line_width", "center_line_width", "dash_length",
@@ -92,10 +112,14 @@ class TextureParams:
                 raise ValueError(f"TextureParams.{name} must be a positive number of metres, got {value!r}")
         if not (isinstance(self.antialias, int) and 1 <= self.antialias <= 15):
             raise ValueError(f"TextureParams.antialias must be an integer in 1..15, got {self.antialias!r}")
-        for name in ("dash_gap", "seam_width", "skirting_height"):
+        for name in ("dash_gap", "dash_offset", "seam_width", "skirting_height"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"TextureParams.{name} must be a number of metres >= 0, got {value!r}")
+        if self.room is not None and not (len(self.room) == 4 and all(math.isfinite(v) for v in self.room)
+                                          and self.room[0] < self.room[2] and self.room[1] < self.room[3]):
+            raise ValueError(f"TextureParams.room must be (x_min, y_min, x_max, y_max) in m with min < max, "
+                             f"got {self.room!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -142,8 +166,7 @@ class TrackTexture:
 
     @cached_property
     def rgb(self) -> np.ndarray:
-        perimeter = 2.0 * (self.width + self.height) * self.texel_size
-        variants = [_texel_planes(self.coverage, self.params, palette, self.params.seed + index, perimeter)[0]
+        variants = [_texel_planes(self.coverage, self.params, palette, self.params.seed + index, self.room)[0]
                     for index, palette in enumerate(self.palettes)]
         return np.ascontiguousarray(np.array(variants, dtype=np.uint8).transpose(1, 0, 2))
 
@@ -175,135 +198,10 @@ class TrackTexture:
         return self._image(self.wall_offset, self.wall_rows, self.wall_cols, variant, grayscale)
 
 
-def route_arrays(track) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(centerline, inner, outer), each (N, 2) float64, from a Track-like object or an (N, 6) route."""
-    if all(hasattr(track, name) for name in ("centerline", "inner", "outer")):
-        arrays = [np.asarray(getattr(track, name), dtype=np.float64) for name in ("centerline", "inner", "outer")]
-    else:
-        route = np.asarray(track, dtype=np.float64)
-        if route.ndim != 2 or route.shape[1] != 6 or route.shape[0] < 2:
-            raise ValueError(f"texture: expected a Track or a DeepRacer route array of shape (N, 6) with N >= 2 "
-                             f"[centre x, y | inner x, y | outer x, y], got shape {route.shape}")
-        arrays = [route[:, 0:2], route[:, 2:4], route[:, 4:6]]
-    for name, array in zip(("centerline", "inner", "outer"), arrays):
-        if array.ndim != 2 or array.shape[1] != 2 or array.shape[0] < 2 or not np.isfinite(array).all():
-            raise ValueError(f"texture: track.{name} must be a finite (N, 2) array with N >= 2, got shape "
-                             f"{array.shape}{'' if np.isfinite(array).all() else ' with NaN/Inf values'}")
-    return arrays[0], arrays[1], arrays[2]
-
-
-@njit(cache=True)
-def _fill_even_odd(edges, width, height):
-    """(height, width) uint8 mask of texel centres inside the even-odd union of edge rings.
-
-    edges: (E, 4) float64 [x1, y1, x2, y2] in texel units (texel centre j at j + 0.5).
-    """
-    mask = np.zeros((height, width), dtype=np.uint8)
-    crossings = np.empty(edges.shape[0], dtype=np.float64)
-    for row in range(height):
-        yc = row + 0.5
-        count = 0
-        for e in range(edges.shape[0]):
-            x1, y1, x2, y2 = edges[e, 0], edges[e, 1], edges[e, 2], edges[e, 3]
-            if (y1 <= yc < y2) or (y2 <= yc < y1):
-                crossings[count] = x1 + (yc - y1) * (x2 - x1) / (y2 - y1)
-                count += 1
-        xs = np.sort(crossings[:count])
-        for p in range(0, count - 1, 2):
-            start = max(int(math.ceil(xs[p] - 0.5)), 0)
-            stop = min(int(math.ceil(xs[p + 1] - 0.5)), width)
-            for col in range(start, stop):
-                mask[row, col] = 1
-    return mask
-
-
-@njit(cache=True)
-def _stamp_polyline(classes, points, half_width, replace_from, new_class, period, dash_length):
-    """Set texels of ``classes`` whose centre lies within ``half_width`` of the polyline ``points``
-    (M, 2) (all in texel units) and whose class is in ``replace_from`` to ``new_class``. With
-    ``period`` > 0 only where the arc length of the nearest point mod ``period`` < ``dash_length``."""
-    height, width = classes.shape
-    s0 = 0.0
-    for i in range(points.shape[0] - 1):
-        ax, ay, bx, by = points[i, 0], points[i, 1], points[i + 1, 0], points[i + 1, 1]
-        dx, dy = bx - ax, by - ay
-        seg_sq = dx * dx + dy * dy
-        seg_len = math.sqrt(seg_sq)
-        c0, c1 = max(int(min(ax, bx) - half_width), 0), min(int(max(ax, bx) + half_width) + 1, width)
-        r0, r1 = max(int(min(ay, by) - half_width), 0), min(int(max(ay, by) + half_width) + 1, height)
-        for row in range(r0, r1):
-            py = row + 0.5
-            for col in range(c0, c1):
-                if classes[row, col] not in replace_from:
-                    continue
-                px = col + 0.5
-                t = 0.0 if seg_sq == 0.0 else min(max(((px - ax) * dx + (py - ay) * dy) / seg_sq, 0.0), 1.0)
-                ex, ey = px - (ax + t * dx), py - (ay + t * dy)
-                if ex * ex + ey * ey >= half_width * half_width:
-                    continue
-                if period <= 0.0 or (s0 + t * seg_len) % period < dash_length:
-                    classes[row, col] = new_class
-        s0 += seg_len
-
-
-def _ring_edges(points: np.ndarray) -> np.ndarray:
-    closed = points if np.array_equal(points[0], points[-1]) else np.vstack([points, points[:1]])
-    return np.hstack([closed[:-1], closed[1:]])
-
-
-def _class_band(centre, inner, outer, origin, step, width, height, params: TextureParams) -> np.ndarray:
-    """(height, width) class map of square cells ``step`` m wide whose corner (0, 0) is at ``origin``."""
-    to_cells = lambda points: np.ascontiguousarray((points - origin) / step)
-    if np.allclose(centre[0], centre[-1]):
-        edges = np.vstack([_ring_edges(to_cells(inner)), _ring_edges(to_cells(outer))])
-    else:  # an open strip: one ring along the inner border and back along the outer one
-        edges = _ring_edges(to_cells(np.vstack([inner, outer[::-1]])))
-    classes = np.where(_fill_even_odd(edges, width, height) > 0, ROAD, FLOOR).astype(np.uint8)
-    period, dash = (params.dash_length + params.dash_gap) / step, params.dash_length / step
-    _stamp_polyline(classes, to_cells(centre), 0.5 * params.center_line_width / step, (ROAD,), CENTER, period, dash)
-    for border in (inner, outer):  # tape inside the road along each border, over the centre line
-        _stamp_polyline(classes, to_cells(border), params.border_line_width / step, (ROAD, CENTER), BORDER, 0.0, 0.0)
-    return classes
-
-
-def rasterise_track_coverage(track, params: TextureParams) -> tuple[np.ndarray, float, float]:
-    """How much of each texel every class covers, and the room's origin (x0, y0), m.
-
-    Returns coverage (height, width, 4) uint8: of the ``antialias**2`` sample points of each texel,
-    how many fall on FLOOR, ROAD, BORDER and CENTER. Rasterised in bands of rows to bound memory.
-    """
-    centre, inner, outer = route_arrays(track)
-    res, sub = params.texel_size, params.antialias
-    everything = np.vstack([centre, inner, outer])
-    lo = np.floor((everything.min(axis=0) - params.margin) / res + 1e-9) * res
-    hi = np.ceil((everything.max(axis=0) + params.margin) / res - 1e-9) * res
-    width, height = int(round((hi[0] - lo[0]) / res)), int(round((hi[1] - lo[1]) / res))
-    if width * height > 64_000_000:
-        raise ValueError(f"texture: the room around the track is {width} x {height} texels at texel_size={res} m; "
-                         f"that is too large, raise TextureParams.texel_size")
-    coverage = np.zeros((height, width, 4), dtype=np.uint8)
-    band = max(1, 4_000_000 // (width * sub * sub))
-    for row0 in range(0, height, band):
-        rows = min(band, height - row0)
-        cells = _class_band(centre, inner, outer, lo + np.array([0.0, row0 * res]), res / sub, width * sub,
-                            rows * sub, params)
-        _count_cells(cells, sub, coverage[row0:row0 + rows])
-    return coverage, float(lo[0]), float(lo[1])
-
-
-@njit(cache=True)
-def _count_cells(cells, sub, coverage):
-    """coverage[r, c, k] += number of cells of class k in the sub x sub block of texel (r, c)."""
-    for row in range(coverage.shape[0]):
-        for col in range(coverage.shape[1]):
-            for i in range(row * sub, row * sub + sub):
-                for j in range(col * sub, col * sub + sub):
-                    coverage[row, col, cells[i, j]] += 1
-
-
 @njit(cache=True)
 def _mix_plane(coverage, lut, noise, grain):
-    """(height, width) uint8: the coverage-weighted mean of lut (4,) plus grain * noise on floor and road."""
+    """(height, width) uint8: the coverage-weighted mean of lut (4,) plus noise times the
+    coverage-weighted grain (4,) of the classes."""
     height, width = coverage.shape[0], coverage.shape[1]
     total = np.float32(coverage[0, 0, 0] + coverage[0, 0, 1] + coverage[0, 0, 2] + coverage[0, 0, 3])
     plane = np.empty((height, width), dtype=np.uint8)
@@ -311,7 +209,8 @@ def _mix_plane(coverage, lut, noise, grain):
         for col in range(width):
             cover = coverage[row, col]
             value = (cover[0] * lut[0] + cover[1] * lut[1] + cover[2] * lut[2] + cover[3] * lut[3]) / total
-            value += grain * noise[row, col] * (cover[FLOOR] + cover[ROAD]) / total
+            value += noise[row, col] * (cover[0] * grain[0] + cover[1] * grain[1] + cover[2] * grain[2]
+                                        + cover[3] * grain[3]) / total
             plane[row, col] = np.uint8(min(max(value + np.float32(0.5), np.float32(0.0)), np.float32(255.0)))
     return plane
 
@@ -334,27 +233,11 @@ def _mip_chain(image: np.ndarray) -> list[np.ndarray]:
 def _ground_channels(coverage: np.ndarray, palette: TexturePalette, seed: int) -> list[np.ndarray]:
     """R, G, B (height, width) uint8 planes of the ground: palette colours mixed by coverage, plus
     grain on road and floor."""
+    grains = palette.grains()
     noise = np.random.default_rng(seed).standard_normal(coverage.shape[:2], dtype=np.float32) \
-        if palette.grain > 0 else np.zeros(coverage.shape[:2], dtype=np.float32)
+        if grains.any() else np.zeros(coverage.shape[:2], dtype=np.float32)
     lut = np.array([palette.floor, palette.road, palette.border, palette.center], dtype=np.float32)
-    return [_mix_plane(coverage, np.ascontiguousarray(lut[:, channel]), noise, np.float32(palette.grain))
-            for channel in range(3)]
-
-
-def _paint_walls(params: TextureParams, palette: TexturePalette, perimeter: float) -> np.ndarray:
-    res = params.wall_texel_size
-    rows, cols = max(int(round(params.wall_height / res)), 1), max(int(math.ceil(perimeter / res)), 1)
-    z = (np.arange(rows) + 0.5) * res
-    p = (np.arange(cols) + 0.5) * res
-    base = np.array(palette.wall, dtype=np.float64)
-    # A gentle vertical gradient and alternating panel tones give the wall visible structure.
-    shade = 1.0 + 0.10 * (z / params.wall_height - 0.5)
-    panel_tone = np.where(np.floor(p / params.panel_width) % 2 == 0, 1.0, 0.94)
-    rgb = base[None, None, :] * shade[:, None, None] * panel_tone[None, :, None]
-    seam = np.abs((p + 0.5 * params.seam_width) % params.panel_width - 0.5 * params.seam_width) < 0.5 * params.seam_width
-    rgb[:, seam] = palette.wall_seam
-    rgb[z < params.skirting_height] = palette.skirting
-    return np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
+    return [_mix_plane(coverage, np.ascontiguousarray(lut[:, channel]), noise, grains) for channel in range(3)]
 
 
 @njit(cache=True)
@@ -369,11 +252,12 @@ def _luma_planes(red, green, blue):
 
 
 def _texel_planes(coverage: np.ndarray, params: TextureParams, palette: TexturePalette, seed: int,
-                  perimeter: float) -> tuple[list[np.ndarray], np.ndarray]:
+                  room: tuple[float, float, float, float]) -> tuple[list[np.ndarray], np.ndarray]:
     """The R, G, B flat texel arrays (ground mip levels, walls, sky) of one palette, and the
     (L, 2) rows / columns of the ground levels."""
     ground = _ground_channels(coverage, palette, seed)
-    wall = _paint_walls(params, palette, perimeter)
+    perimeter = 2.0 * ((room[2] - room[0]) + (room[3] - room[1]))
+    wall = paint_walls(params, palette, perimeter, room)
     planes = []
     for channel in range(3):
         levels = _mip_chain(ground[channel])
@@ -383,11 +267,12 @@ def _texel_planes(coverage: np.ndarray, params: TextureParams, palette: TextureP
 
 
 def _grey_texels(coverage: np.ndarray, params: TextureParams, palette: TexturePalette, seed: int,
-                 perimeter: float) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+                 room: tuple[float, float, float, float]) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
     """Flat grey texels of one palette: mip levels of the ITU-R 601 luma, then walls, then the sky."""
     ground = _luma_planes(*_ground_channels(coverage, palette, seed))
     levels = _mip_chain(ground)
-    wall = luma601(_paint_walls(params, palette, perimeter))
+    perimeter = 2.0 * ((room[2] - room[0]) + (room[3] - room[1]))
+    wall = luma601(paint_walls(params, palette, perimeter, room))
     sky = luma601(np.array(palette.sky))
     flat = np.concatenate([level.reshape(-1) for level in levels] + [wall.reshape(-1), sky.reshape(1)])
     return flat, np.array([level.shape for level in levels], dtype=np.int64), wall.shape
@@ -405,9 +290,9 @@ def build_track_texture(track, params: TextureParams = TextureParams(),
         raise TypeError(f"build_track_texture: params must be a TextureParams, got {type(params).__name__}")
     coverage, x0, y0 = rasterise_track_coverage(track, params)
     height, width = coverage.shape[:2]
-    perimeter = 2.0 * (width + height) * params.texel_size
+    room = (x0, y0, x0 + width * params.texel_size, y0 + height * params.texel_size)
     palettes = (params.palette,) + tuple(extra_palettes)
-    grey = [_grey_texels(coverage, params, palette, params.seed + index, perimeter)
+    grey = [_grey_texels(coverage, params, palette, params.seed + index, room)
             for index, palette in enumerate(palettes)]
     sizes, (wall_rows, wall_cols) = grey[0][1], grey[0][2]
     texels = sizes[:, 0] * sizes[:, 1]
