@@ -50,7 +50,8 @@ def small_config(**changes) -> TrainConfig:
 
 def reward_file(tmp_path, body: str) -> str:
     path = tmp_path / "reward_function.py"
-    lines = ["import os", f"DRIVER = {os.getpid()}  # the learner's process: validation and evaluation run there",
+    lines = ["import os", f"DRIVER = {os.getpid()}  # the learner's process: evaluation runs there",
+             "IN_WORKER = lambda: DRIVER not in (os.getpid(), os.getppid())  # nor the reward check's child",
              "", "", "def reward_function(params):", textwrap.indent(textwrap.dedent(body), "    ").rstrip(),
              "    return 1.0", ""]
     path.write_text("\n".join(lines))
@@ -101,7 +102,7 @@ def test_two_track_job_trains_on_policy_and_writes_each_workers_simtrace(local_r
 def test_dead_workers_are_restarted_and_the_job_resumes_with_one_worker(local_ray, tmp_path):
     marker = tmp_path / "crashed-once"
     path = reward_file(tmp_path, f"""\
-        if os.getpid() != DRIVER and not os.path.exists({str(marker)!r}):
+        if IN_WORKER() and not os.path.exists({str(marker)!r}):
             open({str(marker)!r}, "w").close()
             os._exit(3)  # the reward function takes its worker's process down, once
         """)
@@ -139,7 +140,7 @@ def test_dead_workers_are_restarted_and_the_job_resumes_with_one_worker(local_ra
 
 def test_a_raising_reward_function_is_the_usual_error_not_a_restart(local_ray, tmp_path):
     path = reward_file(tmp_path, """\
-        if os.getpid() != DRIVER and params["steps"] > 3:
+        if IN_WORKER() and params["steps"] > 3:
             raise KeyError("no such param")
         """)
     trainer = create_training("raises", small_config(reward_path=path, workers=2, max_episodes=8))
@@ -147,7 +148,7 @@ def test_a_raising_reward_function_is_the_usual_error_not_a_restart(local_ray, t
     with attach_workers(trainer, 2, notify=notices.append):
         result = trainer.run()
     assert result.stop_reason == "reward_error" and notices == []
-    assert "reward_function.py" in result.error and "KeyError" in result.error and "line 7" in result.error
+    assert "reward_function.py" in result.error and "KeyError" in result.error and "line 8" in result.error
     assert "Traceback" not in result.error
     assert model_folder("raises").error_file.read_text().strip() == result.error.strip()
 
