@@ -87,18 +87,20 @@ def advance_car(x, y, yaw, speed, steer, prev_steer, prev_speed, cmd_steer, cmd_
         if v_sq * abs(kappa) > max_lat:
             kappa = math.copysign(max_lat / v_sq, kappa)
         d_yaw = kappa * ds
-        if abs(d_yaw) > 1e-9:
-            px += (math.sin(yaw + d_yaw) - math.sin(yaw)) / kappa
-            py += (math.cos(yaw) - math.cos(yaw + d_yaw)) / kappa
+        if abs(d_yaw) > 1e-9:  # c, s: cos and sin of the yaw, carried from sub-step to sub-step
+            c_next, s_next = math.cos(yaw + d_yaw), math.sin(yaw + d_yaw)
+            px += (s_next - s) / kappa
+            py += (c - c_next) / kappa
+            c, s = c_next, s_next
         else:
-            px += ds * math.cos(yaw + 0.5 * d_yaw)
-            py += ds * math.sin(yaw + 0.5 * d_yaw)
+            px += ds * c
+            py += ds * s
         yaw += d_yaw
+    x, y = px - pivot * c, py - pivot * s
     if yaw > math.pi:
         yaw -= 2.0 * math.pi
     elif yaw <= -math.pi:
         yaw += 2.0 * math.pi
-    x, y = px - pivot * math.cos(yaw), py - pivot * math.sin(yaw)
     return x, y, yaw, speed, steer
 
 
