@@ -5,8 +5,8 @@ AWS's layout; discrete or continuous actions): a CSV with the columns ``episode,
 throttle, tstamp``. From the logged pose at each row, the car drives the next ``horizon`` logged actions
 with the logged simulation times; its reference point is compared with the logged one ``horizon`` rows
 later. Its speed and steering state come from the logged rows before it (the distance and the turn of
-the step before; the ``lead`` actions before the row). Rows are cut into episodes at an episode change, a gap in ``steps`` or a jump of the car
-(a reset), so no window spans two runs of the car.
+the step before; the ``lead`` actions before the row). Rows are cut into episodes at an episode change,
+a gap in ``steps`` or a jump of the car (a reset), so no window spans two runs of the car.
 """
 
 from __future__ import annotations
@@ -34,7 +34,8 @@ class SimtraceReadError(ValueError):
 class Windows:
     """W replay windows: ``start`` (W, 3) logged reference pose (x, y m; yaw rad) at the window's row,
     ``speed0`` (W,) m/s, ``commands`` (W, lead + H, 2) (steer rad, speed m/s), ``times`` (W, lead + H + 1)
-    s, ``curvature0`` (W,) 1/m over the step before the row, ``logged`` (W, H, 3) the logged poses of the H rows after it, ``source`` (W,) index into ``files``."""
+    s, ``curvature0`` (W,) 1/m over the step before the row, ``logged`` (W, H, 3) the logged poses of the
+    H rows after it, ``source`` (W,) index into ``files``."""
 
     start: np.ndarray
     speed0: np.ndarray
@@ -51,7 +52,8 @@ class Windows:
         return int(self.start.shape[0])
 
     def subset(self, rows: np.ndarray) -> "Windows":
-        return Windows(self.start[rows], self.speed0[rows], self.curvature0[rows], self.commands[rows], self.times[rows],
+        return Windows(self.start[rows], self.speed0[rows], self.curvature0[rows], self.commands[rows],
+                       self.times[rows],
                        self.logged[rows], self.source[rows], self.lead, self.files)
 
 
@@ -69,7 +71,8 @@ class FidelityScore:
     def summary(self) -> str:
         """``fidelity: N windows, position error after 1 s median X cm p90 Y cm, heading error median Z deg``."""
         if self.windows == 0:
-            return "fidelity: 0 windows, position error after 1 s median nan cm p90 nan cm, heading error median nan deg"
+            return ("fidelity: 0 windows, position error after 1 s median nan cm p90 nan cm, "
+                    "heading error median nan deg")
         return (f"fidelity: {self.windows} windows, position error after 1 s median "
                 f"{100 * np.median(self.position_error):.1f} cm p90 {100 * np.quantile(self.position_error, 0.9):.1f} "
                 f"cm, heading error median {math.degrees(float(np.median(self.heading_error))):.1f} deg")
@@ -109,7 +112,8 @@ def read_trace(path: str | Path) -> dict[str, np.ndarray]:
                     rows.append([float(row[i]) for i in index])
                 except (ValueError, IndexError):
                     raise SimtraceReadError(f"{path} line {line_number}: cannot read the columns "
-                                            f"{', '.join(REQUIRED_COLUMNS)} as numbers: {','.join(row)[:120]!r}") from None
+                                            f"{', '.join(REQUIRED_COLUMNS)} as numbers: "
+                                            f"{','.join(row)[:120]!r}") from None
     except (OSError, UnicodeDecodeError, StopIteration, ValueError) as error:
         if isinstance(error, SimtraceReadError):
             raise
@@ -161,7 +165,8 @@ def build_windows(paths: list[Path], horizon: int = 15, lead: int = 24, stride: 
         return Windows(np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros((0, lead + horizon, 2)),
                        np.zeros((0, lead + horizon + 1)), np.zeros((0, horizon, 3)), np.zeros(0, np.int64), lead,
                        tuple(str(p) for p in paths))
-    return Windows(np.array(starts), np.array(speeds), np.array(curvatures), np.array(commands), np.array(times), np.array(logged),
+    return Windows(np.array(starts), np.array(speeds), np.array(curvatures), np.array(commands), np.array(times),
+                   np.array(logged),
                    np.array(sources, dtype=np.int64), lead, tuple(str(p) for p in paths))
 
 

@@ -3,10 +3,10 @@
 Model: a kinematic bicycle whose origin is the rear-axle centre, with an action delay, a steering
 response (first-order lag, slew rate, gain, offset, understeer), speed tracking toward the commanded
 speed (lag, acceleration / braking limits) and a lateral-grip cap (:class:`VehicleParams` documents
-each). The presets fitted to DeepRacer's simulator live in :mod:`laplab.vehicle.presets`. When the
-curvature asks for more lateral acceleration than ``max_lateral_acceleration`` (v^2 |kappa| > a_lat), the tyres saturate and the
-car follows kappa = a_lat / v^2 instead: it understeers. Each sub-step moves the pivot along an exact
-circular arc, so a constant steering angle drives an exact circle.
+each; the cars fitted to DeepRacer's simulator are presets there). When the curvature asks for more
+lateral acceleration than ``max_lateral_acceleration`` (v^2 |kappa| > a_lat), the tyres saturate and
+the car follows kappa = a_lat / v^2 instead: it understeers. Each sub-step moves the pivot along an
+exact circular arc, so a constant steering angle drives an exact circle.
 """
 
 from __future__ import annotations

@@ -72,6 +72,7 @@ def replay_windows(start: np.ndarray, speed0: np.ndarray, commands: np.ndarray, 
     out = np.empty((commands.shape[0], horizon, 3))
     curvature0 = np.full(commands.shape[0], np.nan) if curvature0 is None else curvature0
     _replay(np.ascontiguousarray(start, dtype=np.float64), np.ascontiguousarray(speed0, dtype=np.float64),
-            np.ascontiguousarray(curvature0, dtype=np.float64), float(observed_weight), commands, np.ascontiguousarray(times, dtype=np.float64), int(lead), dynamics_constants(vehicle),
+            np.ascontiguousarray(curvature0, dtype=np.float64), float(observed_weight), commands,
+            np.ascontiguousarray(times, dtype=np.float64), int(lead), dynamics_constants(vehicle),
             float(vehicle.reference_offset), out)
     return out
