@@ -122,7 +122,8 @@ def test_ray_collection_reports_progress_and_the_workers_file_follows_the_worker
 
 
         def reward_function(params):
-            if os.getpid() != {os.getpid()}:  # in the rollout workers: slow steps, a collection of seconds
+            if {os.getpid()} not in (os.getpid(), os.getppid()):  # in the rollout workers (not the reward
+                # check's child): slow steps, a collection of seconds
                 time.sleep(0.02)
             return 1.0
         """))

@@ -1,7 +1,8 @@
 """rl_coach's TensorFlow checkpoint written for the console's "Import model": the variables carry
 rl_coach's names and layouts (deepracer-simapp's graph), the files are found the way TensorFlow
 finds them (the ``checkpoint`` state file), and the restored networks give laplab's torch policy,
-its value function and the frozen model.pb (<= 1e-5 on 100 observations)."""
+its value function and the frozen model.pb (within float32's rounding for the network: 1e-5 or more
+for deep ones, on 100 observations)."""
 
 from __future__ import annotations
 
@@ -21,6 +22,18 @@ from laplab.export.tensorflow_checkpoint import (channels_last_rows, checkpoint_
 from laplab.export.tensorflow_graph import graph_feed, output_node_name  # noqa: E402
 
 PREFIX = "7_Step-2345.ckpt"
+EPS32 = float(np.finfo(np.float32).eps)
+
+
+def float32_tolerance(layers, outputs: np.ndarray) -> float:
+    """How far two float32 evaluations of one network may differ (TensorFlow's and torch's kernels sum in
+    other orders, and hosts with AVX512-BF16 differ again): each layer's sums of fan-in terms round like a
+    random walk, eps * sqrt(fan-in), and the layers' errors add up, on the outputs' scale (2.2e-5 for the
+    camera networks; the DEEP one differed by 1.2e-5 on an AVX512-BF16 host). Never below 1e-5."""
+    weights = [w for branch in layers.branches for w in (*branch.convs, *branch.dense)]
+    weights += [*layers.middleware, layers.head]
+    walk = sum(np.sqrt(np.prod(w.kernel.shape[:-1])) for w in weights)
+    return max(1e-5, EPS32 * float(walk) * max(float(np.abs(outputs).max()), 1.0))
 # camera + lidar, the three camera networks, PPO discrete / continuous and SAC
 CHECKPOINT_CASES = [CASES[0], CASES[2], CASES[3], CASES[4], CASES[7], CASES[8]]
 PPO_ROOT = "main_level/agent/main/online"
@@ -67,13 +80,15 @@ def test_checkpoint_restores_laplabs_policy_and_value(checkpoint, built_case, ca
     feed = graph_feed(layers, observations)
     got = restored.run(feed)
     frozen = built.frozen(output_node_name(layers.algorithm))[1]
-    assert np.abs(got - torch_policy).max() <= 1e-5
-    assert np.abs(got - frozen).max() <= 1e-5
+    tolerance = float32_tolerance(layers, torch_policy)
+    assert tolerance < 1e-4  # the bound stays a test: a wrong weight moves outputs by far more
+    assert np.abs(got - torch_policy).max() <= tolerance
+    assert np.abs(got - frozen).max() <= tolerance
     assert np.ptp(torch_policy, axis=0).max() > 0.05  # outputs that differ between observations
     if value is not None:
         with torch.no_grad():
             torch_value = model.value(observation_to_tensor(observations, "cpu")).numpy()
-        assert np.abs(restored.run_value(feed) - torch_value).max() <= 1e-5
+        assert np.abs(restored.run_value(feed) - torch_value).max() <= float32_tolerance(layers, torch_value)
         assert np.ptp(torch_value) > 0.0
 
 
