@@ -9,12 +9,15 @@ from laplab.jobs.db import Job
 from laplab.jobs.runner import wall_limit_s
 
 TINY = {"num_episodes_between_training": 2, "num_epochs": 3, "batch_size": 32}
-SWEEP_CALLS = 5670  # the validation sweep's calls (the default action space); training's come after
-SLEEPER = ("import time\n"
+# the validation sweep runs in a forked child of the job (multiprocessing's), which must pass; the job's
+# own process sleeps in its 21st training call
+SLEEPER = ("import multiprocessing\n"
+           "import time\n"
            "CALLS = [0]\n"
            "def reward_function(params):\n"
-           "    CALLS[0] += 1\n"
-           f"    if CALLS[0] > {SWEEP_CALLS + 20}:\n"
+           "    if multiprocessing.parent_process() is None:\n"
+           "        CALLS[0] += 1\n"
+           "    if CALLS[0] > 20:\n"
            "        time.sleep(10 ** 6)\n"
            "    return 1.0\n")
 
