@@ -101,13 +101,13 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
             "shares": {key: value / total for key, value in seconds.items()}}
 
 
-def standing_optimum(track: str, car: str = "") -> float:
+def standing_optimum(track: str, car: str) -> float:
     """The race line's lap time from rest, s (what a standing-start evaluation lap can reach), for ``car``
-    (default: DeepRacer on AWS's, laplab's default)."""
+    (the run's: :attr:`TrainConfig.car`)."""
     from laplab.track.raceline_cache import standing_start_optimal_lap_time
     from laplab.track.registry import load_track
-    from laplab.vehicle.params import DEEPRACER, vehicle_preset
-    return standing_start_optimal_lap_time(load_track(track), vehicle_preset(car) if car else DEEPRACER)
+    from laplab.vehicle.params import vehicle_preset
+    return standing_start_optimal_lap_time(load_track(track), vehicle_preset(car))
 
 
 def main() -> None:

@@ -120,7 +120,7 @@ def print_evaluation(console: Console, result, stamp: str, folder, store_url: st
              f"{'continuous laps' if s.continuous else 'trials'}, off-track penalty {s.off_track_penalty:g} s, "
              f"resets {resets}, {'stochastic' if s.stochastic else 'greedy'}")
     console.print(trials_table(result.trials, result.summary.optimal_lap_time, title=title))
-    console.print(car_line(result.vehicle.name, trained_with=getattr(result, "trained_car", None)))
+    console.print(car_line(result.vehicle.name, trained_with=result.trained_car))
     for line in summary_lines(result.summary):
         console.print(line)
     where = f"{store_url}{folder.evaluation_dir(stamp).name}/" if store_url else folder.evaluation_dir(stamp)

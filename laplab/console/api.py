@@ -252,9 +252,9 @@ async def create_model(body: CreateModel, request: Request, user: User = Depends
     if body.physics:
         from laplab.vehicle.physics import PhysicsError, resolve_physics
         try:
-            values["vehicle"] = resolve_physics(body.physics)
+            values["vehicle"] = resolve_physics(body.physics, option="physics")
         except PhysicsError as exc:
-            raise bad_request(str(exc).replace("--physics", "physics"), "physics") from None
+            raise bad_request(str(exc), "physics") from None
     config = _check_train_inputs(values)
     workers = _job_workers(request, body.workers, config.hyper().num_episodes_between_training)
     await _validate_and_claim(request, user, key, body, body.reward_function, body.track, body.model_metadata)

@@ -74,12 +74,8 @@ class SpeedProfile:
 def max_path_curvature(vehicle: VehicleParams) -> float:
     """Largest curvature (1/m) the pivot's path reaches at full steering lock at low speed (either way:
     the smaller of the two when the steering has an offset)."""
-    lock = vehicle.max_steering
-    if vehicle.steering_saturation_deg > 0:
-        saturation = math.radians(vehicle.steering_saturation_deg)
-        lock = saturation * math.tanh(lock / saturation)
-    lock -= abs(vehicle.steering_offset)
-    return vehicle.steering_gain * math.tan(lock) / vehicle.wheelbase
+    lock = vehicle.curvature(np.array([vehicle.max_steering, -vehicle.max_steering]), 0.0)
+    return float(np.abs(lock).min())
 
 
 def open_loop(points: np.ndarray, name: str = "points") -> np.ndarray:

@@ -52,8 +52,9 @@ def car_for_version(version: str | float | None) -> str:
     return DEEPRACER_V6.name
 
 
-def resolve_physics(choice: str) -> str:
-    """``--physics`` (4, 5, 6, ``classic`` or a car's name) -> the car's preset name."""
+def resolve_physics(choice: str, option: str = "--physics") -> str:
+    """``--physics`` (4, 5, 6, ``classic`` or a car's name) -> the car's preset name; ``option`` is what
+    an error calls the choice (the console's API field is ``physics``)."""
     text = str(choice).strip()
     if text in PRESETS:
         return text
@@ -63,7 +64,7 @@ def resolve_physics(choice: str) -> str:
     try:
         return car_for_version(text)
     except PhysicsError:
-        raise PhysicsError(f"--physics {choice!r}: write 4, 5 or 6 (DeepRacer's physics version: 4 the "
+        raise PhysicsError(f"{option} {choice!r}: write 4, 5 or 6 (DeepRacer's physics version: 4 the "
                            f"effort-controlled car, 5 the console's from 2023, 6 DeepRacer on AWS's) or classic "
                            f"(laplab's car before them)") from None
 

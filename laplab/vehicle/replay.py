@@ -8,8 +8,6 @@ returns the poses it reaches, to compare with the logged ones (``bench/fidelity.
 
 from __future__ import annotations
 
-import math
-
 import numba as nb
 import numpy as np
 
@@ -20,7 +18,7 @@ OBSERVED_WEIGHT = 0.75  # of the logged curvature's steering in the starting sta
 
 
 @nb.njit(cache=True, parallel=True)
-def _replay(start, speed0, curvature0, weight, commands, times, lead, dc, ref_offset, out):
+def _replay(start, speed0, observed_steer, weight, commands, times, lead, dc, ref_offset, out):
     n, horizon = out.shape[0], out.shape[1]
     for w in nb.prange(n):
         # the steering state: the commands before the window from rest (a position is not needed)
@@ -31,12 +29,8 @@ def _replay(start, speed0, curvature0, weight, commands, times, lead, dc, ref_of
             _, _, _, speed, steer = advance_car(0.0, 0.0, 0.0, speed, steer, prev_steer, prev_speed,
                                                 commands[w, c, 0], commands[w, c, 1], dt, dc)
             prev_steer, prev_speed = commands[w, c, 0], commands[w, c, 1]
-        if not np.isnan(curvature0[w]):
-            # what the yaw logged just before says the steering is (the car's own state), with the estimate
-            wheelbase, gain, offset, max_steer = dc[0], dc[10], dc[11], dc[5]
-            observed = math.atan(curvature0[w] * wheelbase / gain) - offset
-            observed = min(max(observed, -max_steer), max_steer)
-            steer = weight * observed + (1.0 - weight) * steer
+        if not np.isnan(observed_steer[w]):  # the car's own state, as the yaw logged just before says it
+            steer = weight * observed_steer[w] + (1.0 - weight) * steer
         yaw = start[w, 2]
         x = start[w, 0] - ref_offset * np.cos(yaw)
         y = start[w, 1] - ref_offset * np.sin(yaw)
@@ -70,9 +64,13 @@ def replay_windows(start: np.ndarray, speed0: np.ndarray, commands: np.ndarray, 
         raise ValueError("commands must be (W, lead + H, 2) with lead >= 1 and H >= 1")
     horizon = commands.shape[1] - lead
     out = np.empty((commands.shape[0], horizon, 3))
-    curvature0 = np.full(commands.shape[0], np.nan) if curvature0 is None else curvature0
+    if curvature0 is None:
+        observed = np.full(commands.shape[0], np.nan)
+    else:  # the steering whose curvature the log shows (gain and offset; NaN stays NaN)
+        observed = np.arctan(np.asarray(curvature0, dtype=np.float64) * vehicle.wheelbase / vehicle.steering_gain)
+        observed = np.clip(observed - vehicle.steering_offset, -vehicle.max_steering, vehicle.max_steering)
     _replay(np.ascontiguousarray(start, dtype=np.float64), np.ascontiguousarray(speed0, dtype=np.float64),
-            np.ascontiguousarray(curvature0, dtype=np.float64), float(observed_weight), commands,
+            np.ascontiguousarray(observed, dtype=np.float64), float(observed_weight), commands,
             np.ascontiguousarray(times, dtype=np.float64), int(lead), dynamics_constants(vehicle),
             float(vehicle.reference_offset), out)
     return out
