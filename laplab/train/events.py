@@ -27,7 +27,7 @@ class IterationReport:
     mean_reward: float
     mean_progress: float
     completion_rate: float  # fraction of this iteration's training episodes that lapped
-    eval_progress: float  # mean progress of the greedy evaluation laps
+    eval_progress: float | None  # mean progress of the greedy evaluation laps, %; None: not evaluated
     eval_completed: int
     eval_episodes: int
     best_lap_time: float | None  # best lap (training or evaluation) so far, s

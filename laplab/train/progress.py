@@ -61,10 +61,11 @@ class ProgressPrinter:
             self.console.print(_HEADER, style="bold")
             self._printed_header = True
         best = f"{report.best_lap_time:.3f}s" if report.best_lap_time else "-"
+        evaluated = "  -" if report.eval_progress is None else f"{report.eval_progress:3.0f}"
         self.console.print(
             f"{report.iteration:5d} {report.episodes:8d} {report.env_steps:8d} {report.mean_reward:9.2f} "
             f"{report.mean_progress:7.1f}% {100 * report.completion_rate:5.0f}% "
-            f"{report.eval_completed:>3d}/{report.eval_episodes:<1d} {report.eval_progress:3.0f}% "
+            f"{report.eval_completed:>3d}/{report.eval_episodes:<1d} {evaluated}% "
             f"{best:>9} {report.steps_per_second:8.0f} {_clock(report.time_left_s):>6}"
             + ("  (cut short by the time limit: not evaluated)" if report.partial else ""))
 

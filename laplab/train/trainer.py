@@ -311,7 +311,8 @@ class Trainer:
                 break
             self._emit("on_episodes", IterationEpisodes(self.iteration, self.episodes, batch, evaluation))
             self.episodes += len(batch.status)
-            eval_progress = float(evaluation.progress.mean()) if len(evaluation.status) else 0.0
+            # None, not 0 %: an iteration the time limit cut short ran no evaluation laps
+            eval_progress = float(evaluation.progress.mean()) if len(evaluation.status) else None
             laps = np.concatenate([batch.lap_time, evaluation.lap_time])
             if np.isfinite(laps).any():
                 best = float(np.nanmin(laps))

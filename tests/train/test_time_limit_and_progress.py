@@ -93,6 +93,8 @@ def test_the_time_limit_stops_learning_midway_and_keeps_the_partly_trained_model
     result = trainer.run(callbacks=(reports.append,), should_stop=lambda: bool(stop_now))
     assert result.stop_reason == "stopped" and result.iterations == 1
     assert reports[0].partial and reports[0].eval_episodes == 0
+    assert reports[0].eval_progress is None  # not evaluated: no 0 % plunge at the end of the graph
+    assert reports[0].to_dict()["eval_progress"] is None
     assert reports[0].losses["num_minibatches"] == 2  # stopped after 2 of 10 x ceil(steps / 32)
     assert checkpoints[-1].iteration == 1 and checkpoints[-1].metric is None
 
@@ -186,6 +188,11 @@ def test_a_stop_before_the_first_minibatch_still_writes_the_iteration_log_and_re
     assert reports[0].losses["num_minibatches"] == 0
     row = read_json(trainer.folder.metrics_dir / "laplab-iterations.json")["iterations"][0]
     assert row["losses"]["policy_loss"] is None and row["mean_reward"] == reports[0].mean_reward
+    assert row["eval_progress"] is None  # "not evaluated", never 0 %
+    from laplab.train.progress import ProgressPrinter
+    out = io.StringIO()
+    ProgressPrinter(Console(file=out, width=200), trainer)(reports[0])
+    assert "  0/0   -% " in out.getvalue() and "not evaluated" in out.getvalue()
     history = load_training_history(trainer.folder)
     assert history.size == 1 and np.isnan(history.losses.get("policy_loss", [np.nan])[0])
     assert build_report(trainer.folder, out_dir=tmp_path / "report").is_file()

@@ -225,9 +225,12 @@ const Console = (() => {
     const rewards = rows.map(r => r.mean_reward), lo = Math.min(0, ...rewards), hi = Math.max(...rewards, lo + 1e-9);
     for (let i = 0; i <= 4; i++) c.fillText((hi - (hi - lo) * i / 4).toPrecision(3), 4, pad.t + ph * i / 4 + 4);
     c.fillText("iteration", w / 2 - 20, h - 6); c.fillText("1", pad.l, h - 14); c.fillText(String(rows[n - 1].iteration), w - pad.r - 10, h - 14);
+    // a missing value (an iteration cut short by the time limit has no evaluation laps) breaks the line
+    const has = v => v !== null && v !== undefined && !Number.isNaN(v);
     const line = (vals, color, y) => { c.strokeStyle = color; c.fillStyle = color; c.lineWidth = 2; c.beginPath();
-      vals.forEach((v, i) => { const p = [xs(i), y(v)]; i ? c.lineTo(...p) : c.moveTo(...p); }); c.stroke();
-      vals.forEach((v, i) => { c.beginPath(); c.arc(xs(i), y(v), 2.5, 0, 2 * Math.PI); c.fill(); }); };
+      let pen = false;
+      vals.forEach((v, i) => { if (!has(v)) { pen = false; return; } const p = [xs(i), y(v)]; pen ? c.lineTo(...p) : c.moveTo(...p); pen = true; }); c.stroke();
+      vals.forEach((v, i) => { if (has(v)) { c.beginPath(); c.arc(xs(i), y(v), 2.5, 0, 2 * Math.PI); c.fill(); } }); };
     line(rewards, "#0073bb", v => pad.t + ph * (1 - (v - lo) / (hi - lo)));
     line(rows.map(r => r.mean_progress), "#ff9900", v => pad.t + ph * (1 - v / 100));
     line(rows.map(r => r.eval_progress), "#1d8102", v => pad.t + ph * (1 - v / 100));
