@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from pydantic import create_model as pydantic_model
 
 from laplab.console.auth import current_user
+from laplab.console.service import display_name
 from laplab.evaluate.trials import EvaluationSettings
 from laplab.jobs.db import StoreError, User
 from laplab.jobs.runner import models_dir
@@ -276,6 +277,8 @@ def get_model(name: str, request: Request, user: User = Depends(current_user)) -
     model["reward_function"] = (folder / "reward_function.py").read_text() if (folder / "reward_function.py").exists() else None
     config = folder / "laplab.json"
     model["config"] = json.loads(config.read_text()) if config.exists() else None
+    if model["config"] and model["config"].get("cloned_from"):  # the source by the name its owner knows it by
+        model["config"]["cloned_from"] = display_name(model["config"]["cloned_from"], user.id)
     model["workers"] = _worker_rows(folder, model["status"], model["iterations"])
     _, job = service.model_status(name, model)
     model["rollout_workers"] = job.params.get("workers") if job is not None else None  # asked of the last job

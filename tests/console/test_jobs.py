@@ -127,4 +127,5 @@ def test_train_watch_stop_evaluate_leaderboard_download_import_clone(console):
     cloned = console.wait_for(admin, "live-clone", ("ready", "failed"), timeout_s=240)
     assert cloned["status"] == "ready", cloned
     assert cloned["track"] == "oval"
+    assert admin.get("/api/models/live-clone").json()["config"]["cloned_from"].startswith("live-model (checkpoint ")
     assert admin.delete("/api/models/live-clone").status_code == 200

@@ -290,6 +290,7 @@ const Console = (() => {
       $("#config").replaceChildren(...[["Track", model.track], ["Sensor", (model.sensor || []).join(", ")], ["Algorithm", model.algorithm],
         ["Action space", meta.action_space_type === "continuous" ? "continuous" : `${(meta.action_space || []).length} discrete actions`],
         ["Car", cfg.vehicle || "–"], ["Max time", duration(cfg.max_time_s)], ["Created", when(model.created)], ["Owner", model.owner], ["Description", model.description || "–"]]
+        .concat(cfg.cloned_from ? [["Cloned from", cfg.cloned_from]] : [])
         .map(([k, v]) => el("div", {}, el("span", {}, k), v ?? "–")));
       $("#reward-source").textContent = model.reward_function || "";
       renderWorkers();
