@@ -281,6 +281,8 @@ def get_model(name: str, request: Request, user: User = Depends(current_user)) -
         model["config"]["cloned_from"] = display_name(model["config"]["cloned_from"], user.id)
     model["workers"] = _worker_rows(folder, model["status"], model["iterations"])
     _, job = service.model_status(name, model)
+    if model["config"] is None and job is not None and job.status == "queued":  # what it will train
+        model["config"], model["reward_function"] = service.queued_config(job)
     model["rollout_workers"] = job.params.get("workers") if job is not None else None  # asked of the last job
     return model
 

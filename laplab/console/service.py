@@ -171,12 +171,31 @@ class ConsoleService:
             meta = job.params.get("model_metadata") or {}
             summary.update(track=job.params.get("track") or "classic_2018", sensor=meta.get("sensor", ["STATE"]),
                            algorithm=meta.get("training_algorithm", "clipped_ppo"), max_time_s=job.params.get("max_time_s"))
+        if job is not None and job.status == "queued":  # its place in the line: 1 = next to start
+            summary["queue_position"] = 1 + sum(1 for j in self.store.jobs(status=("queued",)) if j.id < job.id)
         if job is not None and job.error and status in ("failed", "interrupted"):
             summary["error"] = summary.get("error") or job.error
         summary["error"] = without_paths(summary.get("error"))
         if summary["created"] is None and record is not None:
             summary["created"] = _iso(record["created"])
         return summary
+
+    @staticmethod
+    def queued_config(job: Job) -> tuple[dict | None, str | None]:
+        """(the laplab.json a queued training job will write, its reward function): what a model's page
+        shows before the job starts. (None, None) for a job whose configuration is not all in its request."""
+        from dataclasses import fields, replace
+
+        from laplab.train.config import TrainConfig
+        if job.kind != "train":  # a clone's configuration comes from its source when it starts
+            return None, None
+        names = {f.name for f in fields(TrainConfig)}
+        try:
+            config = replace(TrainConfig(), **{k: v for k, v in job.params.items() if k in names}).to_dict()
+        except (TypeError, ValueError):
+            return None, None
+        reward = job_folder(job.id) / "reward_function.py"
+        return config, reward.read_text(encoding="utf-8") if reward.is_file() else None
 
     def _user_name(self, user_id: int | None) -> str | None:
         user = self.store.user_by_id(user_id, enabled=False) if user_id is not None else None

@@ -285,6 +285,7 @@ const Console = (() => {
     };
     const renderModel = () => {
       setStatus(model.status, model.progress);
+      if (model.status === "queued" && model.queue_position) $("#status").textContent = `queued: ${model.queue_position === 1 ? "next to start" : `number ${model.queue_position} in line`}`;
       $("#model-error").textContent = model.status === "failed" || model.status === "interrupted" ? (model.error || model.job?.error || "") : "";
       const cfg = model.config || {}; const meta = cfg.model_metadata || {};
       $("#config").replaceChildren(...[["Track", model.track], ["Sensor", (model.sensor || []).join(", ")], ["Algorithm", model.algorithm],
