@@ -271,8 +271,9 @@ def get_model(name: str, request: Request, user: User = Depends(current_user)) -
     model = service.describe(name, viewer=user)
     model["iterations"] = service.catalog.iterations(name)
     model["evaluation_jobs"] = [j.to_dict() for j in service.store.jobs(model=name, kind=("evaluate",))]
-    from laplab.console.api_exports import export_view
+    from laplab.console.api_exports import download_blocks, export_view
     model["exports"] = [export_view(j) for j in service.store.jobs(model=name, kind=("export",))]
+    model["downloads_blocked"] = download_blocks(name, model["status"])
     folder = models_dir() / name
     model["reward_function"] = (folder / "reward_function.py").read_text() if (folder / "reward_function.py").exists() else None
     config = folder / "laplab.json"

@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from laplab.console.api import _service, bad_request, own_model
 from laplab.console.auth import current_user
+from laplab.console.outcomes import without_paths
 from laplab.jobs.db import Job, User
 from laplab.jobs.runner import job_folder, models_dir
 
@@ -37,6 +38,40 @@ def tensorflow_missing() -> str | None:
         return ("the car's format needs TensorFlow on the console's machine: install it there with "
                 "`pip install 'laplab[deepracer]'` (tensorflow-cpu, openvino) and restart `laplab serve`")
     return None
+
+
+def onnx_missing() -> str | None:
+    """The message when this machine cannot build the ONNX download, else None."""
+    if importlib.util.find_spec("onnx") is None:
+        return ("the ONNX download needs the onnx package on the console's machine: install it there with "
+                "`pip install 'laplab[export]'` and restart `laplab serve`")
+    return None
+
+
+def _format_refused(name: str, fmt: str) -> str | None:
+    """Why model ``name`` cannot be built in ``fmt`` ('car' / 'console'), else None: the model's own
+    reason (a STATE model is not a camera model) before the machine's (no TensorFlow)."""
+    from laplab.errors import UserError
+    from laplab.export.car import CAR_SENSORS, CONSOLE_SENSORS, check_model_exportable
+    try:
+        check_model_exportable(name, *((CAR_SENSORS, "the DeepRacer car") if fmt == "car"
+                                       else (CONSOLE_SENSORS, "the DeepRacer console")))
+    except UserError as exc:
+        return without_paths(str(exc))
+    return tensorflow_missing()
+
+
+def download_blocks(name: str, status: str) -> dict[str, str | None]:
+    """For each download button of model ``name`` (its key), why it cannot work now (None: it can):
+    the page disables the button and shows the reason."""
+    if status in ("training", "queued", "stopping"):
+        busy = "the model is training: download it when its training has ended"
+        return {"tar": busy, "onnx": busy, "car": busy, "console": busy}
+    if not (models_dir() / name / "model" / "deepracer_checkpoints.json").exists():
+        none = "the model has no checkpoint yet"
+        return {"tar": none, "onnx": none, "car": none, "console": none}
+    return {"tar": None, "onnx": onnx_missing(), "car": _format_refused(name, "car"),
+            "console": _format_refused(name, "console")}
 
 
 def export_view(job: Job) -> dict:
@@ -69,14 +104,14 @@ def _export_job(request: Request, name: str, job_id: int) -> Job:
 def start_export(name: str, body: Export, request: Request, user: User = Depends(current_user)) -> dict:
     name = own_model(request, name, user)
     service = _service(request)
-    missing = tensorflow_missing()
-    if missing:
-        raise bad_request(missing, "format")
     active = service.active_job(name)
     if active is not None and active.kind not in ("evaluate", "export"):
         raise HTTPException(409, f"{name!r} is training: download it for the car when its training has ended")
     if not (models_dir() / name / "model" / "deepracer_checkpoints.json").exists():
         raise HTTPException(409, f"{name!r} has no checkpoint to export yet")
+    refused = _format_refused(name, body.format)  # a STATE model says so before TensorFlow is asked for
+    if refused:
+        raise bad_request(refused, "format")
     job = service.submit("export", name, service.owners()[name], body.model_dump())
     return export_view(job)
 

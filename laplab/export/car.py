@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from laplab.errors import UserError
+
 CAR_SENSORS = ("FRONT_FACING_CAMERA", "LEFT_CAMERA", "STEREO_CAMERAS", "LIDAR", "SECTOR_LIDAR")
 CONSOLE_SENSORS = CAR_SENSORS + ("DISCRETIZED_SECTOR_LIDAR",)
 CAR_GRAPH_MEMBER = "agent/model.pb"
@@ -28,7 +30,7 @@ PARITY_TOLERANCE = 1e-4  # max |TensorFlow - torch| accepted by the export's sel
 PARITY_SAMPLES = 16
 
 
-class CarExportError(ValueError):
+class CarExportError(UserError, ValueError):
     """A model that cannot go to the car or the console; the message says why and what to do."""
 
 

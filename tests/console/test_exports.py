@@ -38,10 +38,18 @@ def test_export_requests_are_checked_and_private(console, make_model, monkeypatc
     real_find_spec = importlib.util.find_spec
     monkeypatch.setattr(api_exports.importlib.util, "find_spec",
                         lambda name, *a: None if name == "tensorflow" else real_find_spec(name, *a))
-    missing = admin.post("/api/models/export-checks/exports", json={"format": "car"})
+    # a STATE model says it is not a camera model before TensorFlow is asked for
+    state = admin.post("/api/models/export-checks/exports", json={"format": "car"})
+    assert state.status_code == 400 and "'STATE' is not supported" in state.json()["detail"]["message"]
+    make_model("export-camera", sensor=["FRONT_FACING_CAMERA"])
+    missing = admin.post("/api/models/export-camera/exports", json={"format": "car"})
     assert missing.status_code == 400
     detail = missing.json()["detail"]
     assert detail["field"] == "format" and "pip install 'laplab[deepracer]'" in detail["message"]
+    # the model page gets the same reasons, and disables those buttons with them
+    blocked = admin.get("/api/models/export-checks").json()["downloads_blocked"]
+    assert blocked["tar"] is None and "'STATE' is not supported" in blocked["car"]
+    assert "pip install 'laplab[deepracer]'" in admin.get("/api/models/export-camera").json()["downloads_blocked"]["console"]
 
 
 def test_the_car_and_console_formats_are_built_by_jobs_and_downloaded(console, make_model):

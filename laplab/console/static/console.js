@@ -22,6 +22,8 @@ const Console = (() => {
     if (!res.ok) throw new ApiError(res.status, data?.detail ?? data);
     return data;
   }
+  // a link styled as a disabled button does nothing (its title says why)
+  document.addEventListener("click", e => { if (e.target.closest?.("a.button.disabled")) e.preventDefault(); }, true);
   function toast(text) { const t = $("#toast"); t.textContent = text; t.hidden = false; clearTimeout(toast.timer); toast.timer = setTimeout(() => t.hidden = true, 4000); }
   const fmt = (v, d = 2) => v === null || v === undefined || Number.isNaN(v) ? "–" : Number(v).toFixed(d);
   const lap = v => v === null || v === undefined ? "–" : `${Number(v).toFixed(3)} s`;
@@ -294,7 +296,19 @@ const Console = (() => {
         .concat(cfg.cloned_from ? [["Cloned from", cfg.cloned_from]] : [])
         .map(([k, v]) => el("div", {}, el("span", {}, k), v ?? "–")));
       $("#reward-source").textContent = model.reward_function || "";
+      renderBlocked();
       renderWorkers();
+    };
+    const renderBlocked = () => {  // a download that cannot work is disabled, with the reason on it and below
+      const blocked = model.downloads_blocked || {}; const reasons = [];
+      for (const [id, key] of [["#download-tar", "tar"], ["#download-onnx", "onnx"], ["#export-car", "car"], ["#export-console", "console"]]) {
+        const n = $(id); if (!n || !(key in blocked)) continue; const why = blocked[key];
+        n.classList.toggle("disabled", !!why); if (n.tagName === "BUTTON") n.disabled = !!why;
+        if (n.dataset.title === undefined) n.dataset.title = n.title;  // the button's own hint, kept
+        n.title = why || n.dataset.title;
+        if (why && !["training", "queued", "stopping"].includes(model.status) && !reasons.includes(why)) reasons.push(`${n.textContent.trim()}: ${why}`);
+      }
+      const box = $("#downloads-blocked"); if (box) box.textContent = reasons.join(" · ");
     };
     const renderWorkers = () => {  // the Ray rollout workers of the last session (none: no table)
       const workers = model.workers || [];
