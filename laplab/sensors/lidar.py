@@ -55,12 +55,11 @@ class LidarParams:
     noise_std: float = 0.01      # m
     mount_x: float = 0.10        # m
     mount_y: float = 0.0         # m
-    mount_z: float = 0.185       # m above the ground: the beam plane; obstacles lower than this are not seen
 
     def __post_init__(self) -> None:
         if int(self.num_beams) != self.num_beams or self.num_beams < 1:
             raise ValueError(f"LidarParams.num_beams must be a positive integer, got {self.num_beams!r}")
-        for name in ("min_angle", "max_angle", "min_range", "max_range", "noise_std", "mount_x", "mount_y", "mount_z"):
+        for name in ("min_angle", "max_angle", "min_range", "max_range", "noise_std", "mount_x", "mount_y"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"LidarParams.{name} must be finite, got {getattr(self, name)!r}")
         if not 0.0 <= self.min_range < self.max_range:
@@ -336,8 +335,8 @@ def scan(walls: LidarWalls, poses: np.ndarray, params: LidarParams = DEFAULT_LID
     """Lidar ranges of N cars: poses (N, 3) [x, y, yaw] of the model origin -> (N, num_beams) float32 m.
 
     ``obstacles``: each car's K obstacles, seven (N, K) arrays x, y, yaw, half_length, half_width,
-    height, kind (a ``laplab.sim.obstacles.Obstacles``); a beam stops at the nearest box taller than
-    ``params.mount_z`` (:func:`laplab.sensors.obstacle_kernel.obstacle_ranges`).
+    height, kind (a ``laplab.sim.obstacles.Obstacles``); a beam stops at the nearest box's side
+    (:func:`laplab.sensors.obstacle_kernel.obstacle_ranges`).
 
     Noise (``params.noise_std``) is drawn from ``rng`` only when one is given; ``rng=None`` gives the
     exact ranges. ``parallel``: use numba's threads (None: only for batches of 2048+ beams). Pass
@@ -355,7 +354,7 @@ def scan(walls: LidarWalls, poses: np.ndarray, params: LidarParams = DEFAULT_LID
     packed = obstacle_boxes(obstacles, poses.shape[0], "lidar scan")
     if packed is not None:
         obstacle_ranges(packed.boxes, packed.kind, poses, params.beam_angles, params.mount_x, params.mount_y,
-                        params.mount_z, params.min_range, out)
+                        params.min_range, out)
     return _add_noise(out, params, rng)
 
 

@@ -9,10 +9,11 @@ camera looks come from; unchanged at 01f5f015):
 - ``bundle/models/bot_car/model.sdf``: the bot car's shell ``car_body_link_v3`` with material ambient =
   diffuse = 0.156 grey ("0x28 0x28 0x28") and wheels of 0.1 grey. The shell mesh
   ``bundle/meshes/deepracer/car_body_link_v3.STL`` spans x -0.0822..0.2420, y +-0.0939, z 0.0006..0.1950 m
-  in its link, placed 0.0762 m behind and 0.0158 m above the chassis origin; the wheels reach y +-0.0986
-  m. As a box: 0.324 m long, 0.197 m wide (over the wheels), 0.211 m high, its centre 0.0037 m ahead
-  of the chassis origin, i.e. 0.0854 m ahead of the rear axle (the chassis origin is 0.0817 m ahead
-  of it, ``docs/car.md``).
+  in its link, which sits 0.0762 m behind and 0.0158 m above the chassis origin; the wheels reach y
+  +-0.098 m. As a box: 0.324 m long, 0.196 m wide (over the wheels) and 0.16 m high: the shell's
+  main top (above 0.156 m from the ground it narrows to |y| < 0.06 m, and only a hump at its front,
+  |y| < 0.05 m, reaches 0.211 m). The box's centre is 0.0037 m ahead of the chassis origin, i.e.
+  0.0854 m ahead of the rear axle (the chassis origin is 0.0817 m ahead of it, ``docs/car.md``).
 - Other models' cars (head-to-head): the racecar URDF's same shell, coloured by
   ``markov/gazebo_utils/model_updater.py`` ``update_color``: ambient = 0.1 x colour, diffuse = 0.35 x
   colour, with the colour from ``markov/rollout_constants.py`` ``COLOR_MAP`` (the car's ``CAR_COLOR``,
@@ -31,16 +32,17 @@ this layer cannot import; tests/sensors/test_obstacles.py checks that they agree
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
+from numba import njit
 
-from laplab.sensors.texture import luma601
-from laplab.sensors.walls import Light, light_gain
+from laplab.sensors.walls import Light
 
 EMPTY, BOX, BOT_CAR, MODEL_CAR = 0, 1, 2, 3
 NUM_KINDS = 4
 BOX_SIZE = (0.40, 0.30, 0.25)          # m: length, width, height of simapp's box_obstacle
-CAR_SIZE = (0.324, 0.197, 0.211)       # m: length, width, height of a DeepRacer car's body box
+CAR_SIZE = (0.324, 0.196, 0.16)        # m: length, width, height of a DeepRacer car's body box
 CAR_BODY_AHEAD = 0.0854                # m: the body box's centre ahead of the car's rear axle
 SCENE_AMBIENT = 0.5                    # every DeepRacer world's <scene><ambient>
 # rollout_constants.COLOR_MAP: the CAR_COLOR names of a race yaml -> RGB in 0..1.
@@ -135,27 +137,72 @@ def obstacle_boxes(obstacles, num_cars: int, caller: str) -> ObstacleBoxes | Non
     return ObstacleBoxes(np.ascontiguousarray(boxes), kind)
 
 
+@lru_cache(maxsize=32)
+def light_table(lights: tuple[Light, ...]) -> np.ndarray:
+    """(L, 13) float64 rows [is_point, diffuse rgb, unit vector towards a directional light, position,
+    attenuation (constant, linear, quadratic)] of ``lights`` (none: Gazebo's default sun); read-only."""
+    rows = []
+    for light in lights or (DEFAULT_SUN,):
+        towards = -np.asarray(light.direction, dtype=np.float64)
+        towards = towards / (np.linalg.norm(towards) or 1.0)
+        rows.append([float(light.kind != "directional"), *light.diffuse, *towards, *light.position,
+                     *light.attenuation])
+    table = np.array(rows, dtype=np.float64)
+    table.flags.writeable = False
+    return table
+
+
+@njit(cache=True)
+def _face_colours_kernel(boxes, kind, diffuse, ambient, scene_ambient, lights, out):
+    """out (N, K, 5, 4) uint8: the lit RGB and grey of every face (see :func:`face_colours`)."""
+    weights = (299, 587, 114)
+    for n in range(kind.shape[0]):
+        for q in range(kind.shape[1]):
+            x, y, yaw = boxes[n, q, 0], boxes[n, q, 1], boxes[n, q, 2]
+            half_length, half_width, height = boxes[n, q, 3], boxes[n, q, 4], boxes[n, q, 5]
+            c, s = np.cos(yaw), np.sin(yaw)
+            k = kind[n, q]
+            for face in range(NUM_FACES):
+                nx, ny, nz, pz = 0.0, 0.0, 1.0, height  # TOP
+                if face == FRONT or face == BACK:
+                    sign = 1.0 if face == FRONT else -1.0
+                    nx, ny, nz, pz = sign * c, sign * s, 0.0, 0.5 * height
+                elif face == LEFT or face == RIGHT:
+                    sign = 1.0 if face == LEFT else -1.0
+                    nx, ny, nz, pz = -sign * s, sign * c, 0.0, 0.5 * height
+                reach = half_length if face <= BACK else (half_width if face <= RIGHT else 0.0)
+                px, py = x + reach * nx, y + reach * ny
+                grey = 500
+                for channel in range(3):
+                    gain = 0.0
+                    for i in range(lights.shape[0]):
+                        if lights[i, 0] == 0.0:
+                            cosine, scale = max(nx * lights[i, 4] + ny * lights[i, 5] + nz * lights[i, 6], 0.0), 1.0
+                        else:
+                            ox, oy, oz = lights[i, 7] - px, lights[i, 8] - py, lights[i, 9] - pz
+                            distance = max(np.sqrt(ox * ox + oy * oy + oz * oz), 1e-9)
+                            cosine = max((nx * ox + ny * oy + nz * oz) / distance, 0.0)
+                            scale = 1.0 / max(lights[i, 10] + lights[i, 11] * distance
+                                              + lights[i, 12] * distance * distance, 1e-9)
+                        gain += cosine * scale * lights[i, 1 + channel]
+                    rgb = scene_ambient * ambient[k, channel] + diffuse[k, channel] * gain
+                    value = min(max(np.rint(255.0 * min(rgb, 1.0)), 0.0), 255.0)
+                    out[n, q, face, channel] = np.uint8(value)
+                    grey += weights[channel] * np.int64(value)
+                out[n, q, face, 3] = np.uint8(grey // 1000)
+
+
 def face_colours(packed: ObstacleBoxes, lights: tuple[Light, ...] = (),
                  look: ObstacleLook = DEFAULT_OBSTACLE_LOOK) -> np.ndarray:
-    """(N, K, NUM_FACES, 4) uint8 colour of every face of every obstacle: R, G, B and ITU-R 601 grey.
+    """(N, K, NUM_FACES, 4) uint8 colour of every face of every obstacle: R, G, B and ITU-R 601 grey
+    (:func:`laplab.sensors.texture.luma601`).
 
-    Each face is lit at its centre with its outward normal (``lights``: a track look's
-    ``TextureParams.wall_lights``; none: Gazebo's default sun).
+    A face shows ``scene_ambient * ambient + diffuse * sum over lights of light_diffuse * max(0, n . l)
+    * attenuation`` (0..1, times 255, rounded), lit at its centre with its outward normal; ``lights``:
+    a track look's ``TextureParams.wall_lights`` (none: Gazebo's default sun).
     """
-    boxes = packed.boxes
-    x, y, yaw, half_length, half_width, height = np.moveaxis(boxes, -1, 0)
-    c, s = np.cos(yaw), np.sin(yaw)
-    zero = np.zeros_like(x)
-    # Outward normals (world) and face centres, each (N, K, 5, 3).
-    normals = np.stack([np.stack([c, s, zero], -1), np.stack([-c, -s, zero], -1), np.stack([-s, c, zero], -1),
-                        np.stack([s, -c, zero], -1), np.stack([zero, zero, zero + 1.0], -1)], axis=-2)
-    reach = np.stack([half_length, half_length, half_width, half_width, zero], axis=-1)[..., None]
-    middle = np.stack([x, y, 0.5 * height], -1)[..., None, :]
-    centres = middle + reach * normals
-    centres[..., TOP, 2] = height
-    gain = light_gain(lights or (DEFAULT_SUN,), centres, normals)
     diffuse, ambient = look.materials()
-    kind = packed.kind[..., None]
-    rgb = look.scene_ambient * ambient[kind] + diffuse[kind] * gain
-    rgb = np.clip(np.rint(255.0 * np.minimum(rgb, 1.0)), 0, 255).astype(np.uint8)
-    return np.concatenate([rgb, luma601(rgb)[..., None]], axis=-1)
+    out = np.empty(packed.kind.shape + (NUM_FACES, 4), dtype=np.uint8)
+    _face_colours_kernel(packed.boxes, packed.kind, diffuse, ambient, float(look.scene_ambient),
+                         light_table(tuple(lights)), out)
+    return out

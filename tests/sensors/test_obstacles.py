@@ -70,6 +70,22 @@ def test_no_obstacles_leave_the_frames_bit_exact(straight_texture, track_and_tex
                                                      obstacles=no_obstacles(3, 2)))
 
 
+def test_face_colours_follow_gazebos_diffuse_shading_by_hand():
+    # Gazebo's default sun only: 0.8 diffuse shining along (-0.5, 0.1, -0.9); scene ambient 0.5.
+    colours = face_colours(obstacle_boxes(obstacles([[box_at(1.0, 0.0)]]), 1, "test"))[0, 0]
+    brown = np.array([0.482, 0.38, 0.309])  # box_obstacle's ambient = diffuse
+    towards_sun = np.array([0.5, -0.1, 0.9]) / math.sqrt(0.25 + 0.01 + 0.81)
+    top = 0.5 * brown + brown * 0.8 * towards_sun[2]
+    front = 0.5 * brown + brown * 0.8 * towards_sun[0]   # the +x face turns to the sun
+    back = 0.5 * brown                                   # the -x face turns away: ambient only
+    for face, rgb in ((4, top), (0, front), (BACK, back)):
+        expected = np.rint(255 * rgb).astype(int)
+        assert colours[face, :3].tolist() == expected.tolist()
+        assert colours[face, 3] == (299 * expected[0] + 587 * expected[1] + 114 * expected[2] + 500) // 1000
+    bot = face_colours(obstacle_boxes(obstacles([[box_at(1.0, 0.0, 0.0, BOT_CAR)]]), 1, "test"))[0, 0]
+    assert bot[BACK, :3].tolist() == [round(255 * 0.5 * 0.156)] * 3  # the bot car's 0x28 grey shell
+
+
 def test_camera_sees_a_box_in_front_in_its_lit_colour_hiding_the_road(straight_texture):
     pose = np.array([[0.0, 0.0, 0.0]])
     front = obstacles([[box_at(1.2, 0.0)]])
@@ -226,8 +242,8 @@ def test_lidar_beam_reads_the_distance_to_a_box_in_front_and_ignores_one_behind(
         assert ranges[b] < plain[b]
     far_off = np.abs(angles) > 0.3
     assert np.array_equal(ranges[far_off], plain[far_off])
-    # A box behind the car (and one lower than the beams ahead) changes no forward beam.
-    behind = obstacles([[box_at(-1.5, 0.0), box_at(1.0, 0.0, 0.0, BOX, (0.2, 0.15, 0.1))]])
+    # A box behind the car changes no forward beam.
+    behind = obstacles([[box_at(-1.5, 0.0), box_at(-0.8, 1.2, 0.5, BOT_CAR)]])
     back = scan(walls, pose, obstacles=behind)[0]
     forward = np.abs(angles) < math.pi / 2
     assert np.array_equal(back[forward], plain[forward])
