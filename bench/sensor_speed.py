@@ -142,10 +142,15 @@ def object_rows(route: np.ndarray, runs: int, seconds: float, name: str = "") ->
         poses = poses_on_track(route, n, rng)
         objects = objects_ahead(poses)
         out = np.empty((n, FRONT_FACING_CAMERA.height, FRONT_FACING_CAMERA.width), np.uint8)
+        calls = {}
         for label, given in (("time trial", None), ("3 objects in view", objects)):
-            call = (lambda g: lambda: render_camera(texture, poses, out=out, obstacles=g))(given)
+            call = calls[label] = (lambda g: lambda: render_camera(texture, poses, out=out, obstacles=g))(given)
             threaded, one_core = threaded_and_one_core(call, runs, seconds)
             rows.append(Row("camera", f"160x120 grey, {label}", n, n / threaded, 1e6 * threaded, n / one_core))
+        if n == 64:
+            for label, (median, best) in interleaved_cpu_rates(calls, n, runs, seconds).items():
+                print(f"camera N=64, {label}: {median:,.0f} frames per CPU-second on one thread (median; best "
+                      f"{best:,.0f}), interleaved")
     poses = poses_on_track(route, 64, rng)
     for label, given in (("time trial", None), ("3 objects in view", objects_ahead(poses))):
         call = (lambda g: lambda: scan(walls, poses, DEFAULT_LIDAR, rng, obstacles=g))(given)

@@ -82,27 +82,36 @@ def _project_corners(ox, oy, cr, sr, half_length, half_width, height, cam_h, cp,
 @_jit
 def _silhouette_spans(corners, behind, width, spans):
     """Per image row, the columns [spans[r, 0], spans[r, 1]) that may see the box: the row's stretch
-    of the corners' convex hull (its ends lie on segments between two corners), one pixel wider on
-    each side; every column of every row when a corner lies behind the camera. Returns the rows
-    (first, end) that hold any, (0, 0) for none."""
+    of its silhouette (the convex hull of the projected corners, whose outline is made of projected box
+    edges: over the row's band r <= v <= r + 1 the stretch runs from the leftmost to the rightmost
+    point of the edges' parts within the band), one pixel wider on each side; every column of every
+    row when a corner lies behind the camera.
+    Returns the rows (first, end) that hold any, (0, 0) for none; rows outside are left untouched."""
     height_px = spans.shape[0]
+    if behind > 0:
+        spans[:, 0], spans[:, 1] = 0, width
+        return 0, height_px
+    v_lo, v_hi = corners[:, 1].min(), corners[:, 1].max()
+    row0, row1 = max(int(math.floor(v_lo)) - 1, 0), min(int(math.ceil(v_hi)) + 1, height_px)
     first, end = height_px, 0
-    for r in range(height_px):
+    for r in range(row0, row1):
         lo, hi = 1e30, -1e30
-        if behind > 0:
-            lo, hi = 0.0, width
-        else:
-            v = r + 0.5
-            for a in range(8):
-                for b in range(a + 1, 8):
-                    va, vb = corners[a, 1], corners[b, 1]
-                    if min(va, vb) - 0.5 <= v <= max(va, vb) + 0.5:  # half a row of slack for sub-rows
-                        if abs(vb - va) < 1e-9:
-                            u0, u1 = min(corners[a, 0], corners[b, 0]), max(corners[a, 0], corners[b, 0])
-                        else:
-                            w = min(max((v - va) / (vb - va), 0.0), 1.0)
-                            u0 = u1 = corners[a, 0] + w * (corners[b, 0] - corners[a, 0])
-                        lo, hi = min(lo, u0), max(hi, u1)
+        for a in range(8):
+            for bit in (1, 2, 4):  # the box's 12 edges join corners that differ in one bit
+                if a & bit:
+                    continue
+                b = a | bit
+                va, vb = corners[a, 1], corners[b, 1]
+                # The part of the edge within the row's band r <= v <= r + 1 (where its samples lie).
+                if abs(vb - va) < 1e-9:
+                    w0, w1 = (0.0, 1.0) if r - 1e-6 <= va <= r + 1 + 1e-6 else (1.0, 0.0)
+                else:
+                    w0, w1 = (r - va) / (vb - va), (r + 1 - va) / (vb - va)
+                    w0, w1 = max(min(w0, w1), 0.0), min(max(w0, w1), 1.0)
+                if w0 <= w1:
+                    ua, ub = corners[a, 0] + w0 * (corners[b, 0] - corners[a, 0]), \
+                        corners[a, 0] + w1 * (corners[b, 0] - corners[a, 0])
+                    lo, hi = min(lo, ua, ub), max(hi, ua, ub)
         c0, c1 = max(int(math.floor(lo)) - 1, 0), min(int(math.ceil(hi)) + 1, width)
         if lo > hi or c0 >= c1:
             spans[r, 0], spans[r, 1] = 0, 0
@@ -147,6 +156,13 @@ def _box_row(hx, hy, slope, px, py, cr, sr, half_length, half_width, height, cam
         value[j] = colour if hit else value[j]
 
 
+@njit(cache=True, error_model="numpy")
+def _paint_row(value, out_row):
+    """out_row[q] = value[q] where a box was hit (value >= 0, a colour below 256)."""
+    for q in range(value.shape[0]):
+        out_row[q] = np.uint8(value[q]) if value[q] >= 0 else out_row[q]
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def obstacle_pass(boxes, kind, values, poses, camera, room, hx, hy, slope, k, out):
     """Paint obstacles over already rendered frames ``out`` (N, H, W) uint8 (may be a channel view).
@@ -173,6 +189,7 @@ def obstacle_pass(boxes, kind, values, poses, camera, room, hx, hy, slope, k, ou
         slot = np.empty(n_slots, dtype=np.int64)
         corners = np.empty((8, 2))
         count = 0
+        walls_matter = False
         row_lo, row_hi = height_px, 0
         for q in range(n_slots):
             if kind[n, q] == 0:
@@ -194,6 +211,7 @@ def obstacle_pass(boxes, kind, values, poses, camera, room, hx, hy, slope, k, ou
             local[count, 2], local[count, 3] = cr, sr
             local[count, 4], local[count, 5], local[count, 6] = hl, hw, h
             local[count, 7] = 0.0 if (inside and camera_in_room) else 1.0
+            walls_matter = walls_matter or local[count, 7] > 0.0
             rows[count, 0], rows[count, 1] = r0, r1
             slot[count] = q
             count += 1
@@ -222,6 +240,9 @@ def obstacle_pass(boxes, kind, values, poses, camera, room, hx, hy, slope, k, ou
                          local[i, 4], local[i, 5], local[i, 6], cam_h, colours[0], colours[1], colours[2], colours[3],
                          colours[4],
                          depth[(c0 - col_lo) * k2:(c1 - col_lo) * k2], value[(c0 - col_lo) * k2:(c1 - col_lo) * k2])
+            if k2 == 1 and not walls_matter:  # one sample per pixel: the hit's colour, or the pixel as it was
+                _paint_row(value[:col_hi - col_lo], out[n, r, col_lo:col_hi])
+                continue
             for col in range(col_lo, col_hi):
                 total, hits = 0, 0
                 for sample in range(k2):

@@ -105,11 +105,17 @@ def test_camera_sees_a_box_in_front_in_its_lit_colour_hiding_the_road(straight_t
     assert np.all(seen[:, :int(u_left) - 1] == plain[:, :int(u_left) - 1])  # nothing beside it changes
 
 
-def test_camera_does_not_see_boxes_behind_it_or_beside_it(straight_texture):
+def test_camera_does_not_see_boxes_behind_it_beside_it_or_beyond_the_wall(straight_texture):
     pose = np.array([[5.0, 0.0, 0.0]])
     plain = render_camera(straight_texture, pose, CAMERA)
     behind = obstacles([[box_at(4.0, 0.0), box_at(5.0, 0.6), box_at(3.0, -0.4, 0.3, BOT_CAR)]])
     assert np.array_equal(render_camera(straight_texture, pose, CAMERA, obstacles=behind), plain)
+    # Nor one beyond the room's wall (the room starts at x = -4 m).
+    towards_wall = np.array([[-3.0, 0.0, math.pi]])
+    beyond = obstacles([[box_at(-4.6, 0.0)]])
+    assert straight_texture.room[0] == pytest.approx(-4.0)
+    assert np.array_equal(render_camera(straight_texture, towards_wall, CAMERA, obstacles=beyond),
+                          render_camera(straight_texture, towards_wall, CAMERA))
 
 
 def test_a_box_seen_at_an_angle_shows_two_differently_lit_sides(straight_texture):
@@ -219,6 +225,13 @@ def test_numba_obstacle_pass_matches_numpy_reference(track_and_texture, camera):
             size = BOX_HALF if kind == BOX else (CAR_SIZE[0] / 2, CAR_SIZE[1] / 2, CAR_SIZE[2])
             row.append(box_at(x, y, rng.uniform(-np.pi, np.pi), kind, size))
         items.append(row)
+    # Walls between camera and box: a camera outside the room looking in at a box inside, and one
+    # inside looking out at a box beyond the wall (hidden), beside a box in front of the wall.
+    x0, y0, x1, y1 = texture.room
+    middle = 0.5 * (y0 + y1)
+    poses = np.vstack([poses, [[x0 - 0.5, middle, 0.0], [x0 + 1.0, middle, math.pi]]])
+    items += [[box_at(x0 + 0.6, middle), box_at(x0 + 1.2, middle + 0.3, 0.4, BOT_CAR)],
+              [box_at(x0 - 0.4, middle), box_at(x0 + 0.4, middle + 0.4, 0.2)]]
     rows_ = obstacles(items)
     fast = render_camera(texture, poses, camera, obstacles=rows_).astype(int)
     slow = paint_obstacles_reference(texture, poses, camera, rows_).astype(int)
