@@ -237,7 +237,8 @@ def test_numba_obstacle_pass_matches_numpy_reference(track_and_texture, camera):
     slow = paint_obstacles_reference(texture, poses, camera, rows_).astype(int)
     plain = render_camera(texture, poses, camera).astype(int)
     assert np.mean(fast != plain) > 0.01  # the obstacles are in view
-    assert np.mean(np.abs(fast - slow) > 1) < 1e-3
+    # Exact but where the ground renderer and its numpy reference round a level apart (< 0.01%).
+    assert np.abs(fast - slow).max() <= 1 and np.mean(fast != slow) < 1e-4
 
 
 def test_lidar_beam_reads_the_distance_to_a_box_in_front_and_ignores_one_behind():
