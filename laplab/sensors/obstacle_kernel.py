@@ -5,12 +5,14 @@ its height. A horizontal ray p + t*d (|d| = 1, t in metres along the ground) mee
 [t_enter, t_exit] (the 2-D slab test in the box's own frame); the face it enters by is the side whose
 slab gave t_enter. Rays that start inside a box do not see it (Gazebo draws no back faces).
 
-Camera: a second pass after :func:`laplab.sensors.camera_kernel.render_kernel`, only over the pixels
-inside each obstacle's projected bounding rectangle. A sample whose ray rises ``slope`` metres per
-metre from the camera's height ``cam_h`` hits a side if 0 <= z(t_enter) <= height (z < 0: the ground
-came first), else the top where z = height if that lies before t_exit; the nearest hit nearer than the
-room's walls paints the face's flat colour. A pixel's k x k samples average; samples that miss keep
-the pixel's ground / wall value. Lidar: the nearest entry face along each beam.
+Camera: a second pass after :func:`laplab.sensors.camera_kernel.render_kernel`, only over the samples
+within each obstacle's projected silhouette (per image row, one stretch of columns). A sample whose
+ray rises ``slope`` metres per metre from the camera's height ``cam_h`` hits a side if
+0 <= z(t_enter) <= height (z < 0: the ground came first), else the top where z = height if that
+lies before t_exit; the nearest hit nearer than the room's walls paints the face's flat colour. A
+pixel's k x k samples average; samples that miss keep the pixel's ground / wall value.
+
+Lidar: the nearest entry face along each beam.
 """
 
 from __future__ import annotations
@@ -63,9 +65,9 @@ def _wall_distance(wx, wy, cx, cy, room):
 @_jit
 def _project_corners(ox, oy, cr, sr, half_length, half_width, height, cam_h, cp, sp, focal, width, height_px,
                      corners):
-    """Image points (u, v) of the box's 8 corners into corners (8, 2); returns how many lie behind the
-    camera (then corners is not filled). The box's centre is (ox, oy) from the camera in the car frame,
-    its heading (cr, sr)."""
+    """Image points (u, v) of the box's 8 corners into corners (8, 2); returns 0, or a positive count
+    when a corner lies behind the camera (then corners is not all filled). The box's centre is (ox, oy)
+    from the camera in the car frame, its heading (cr, sr)."""
     for corner in range(8):
         ex = half_length if corner & 1 else -half_length
         ey = half_width if corner & 2 else -half_width
@@ -122,8 +124,8 @@ def _silhouette_spans(corners, behind, width, spans):
 
 
 @njit(cache=True, fastmath=True, error_model="numpy")
-def _box_row(hx, hy, slope, px, py, cr, sr, half_length, half_width, height, cam_h, front, back, left, right, top_colour,
-             depth, value):
+def _box_row(hx, hy, slope, px, py, cr, sr, half_length, half_width, height, cam_h, front, back, left, right,
+             top_colour, depth, value):
     """One obstacle against a run of samples (one image row's columns): where its ray hits the box
     nearer than ``depth``, set depth and value (the colour of the face it enters: front ... top_colour).
     Branch-free and gather-free so that LLVM vectorises it (a function of its own, as camera_kernel's
@@ -185,7 +187,6 @@ def obstacle_pass(boxes, kind, values, poses, camera, room, hx, hy, slope, k, ou
         # (cr, sr), half sizes, height, whether a wall may hide it, its rows' column spans and slot.
         local = np.empty((n_slots, 8))
         spans = np.zeros((n_slots, height_px, 2), dtype=np.int64)
-        rows = np.empty((n_slots, 2), dtype=np.int64)
         slot = np.empty(n_slots, dtype=np.int64)
         corners = np.empty((8, 2))
         count = 0
@@ -204,15 +205,15 @@ def obstacle_pass(boxes, kind, values, poses, camera, room, hx, hy, slope, k, ou
             r0, r1 = _silhouette_spans(corners, behind, width, spans[count])
             if r0 >= r1:
                 continue
-            reach = abs(hl * math.cos(byaw)) + abs(hw * math.sin(byaw)), abs(hl * math.sin(byaw)) + abs(hw * math.cos(byaw))
-            inside = (room[0] < bx - reach[0]) and (bx + reach[0] < room[2]) and (room[1] < by - reach[1]) \
-                and (by + reach[1] < room[3])
+            reach_x = abs(hl * math.cos(byaw)) + abs(hw * math.sin(byaw))  # the footprint's half extents
+            reach_y = abs(hl * math.sin(byaw)) + abs(hw * math.cos(byaw))
+            inside = (room[0] < bx - reach_x) and (bx + reach_x < room[2]) and (room[1] < by - reach_y) \
+                and (by + reach_y < room[3])
             local[count, 0], local[count, 1] = -(cr * ox + sr * oy), -(-sr * ox + cr * oy)
             local[count, 2], local[count, 3] = cr, sr
             local[count, 4], local[count, 5], local[count, 6] = hl, hw, h
             local[count, 7] = 0.0 if (inside and camera_in_room) else 1.0
             walls_matter = walls_matter or local[count, 7] > 0.0
-            rows[count, 0], rows[count, 1] = r0, r1
             slot[count] = q
             count += 1
             row_lo, row_hi = min(row_lo, r0), max(row_hi, r1)
