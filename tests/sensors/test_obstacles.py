@@ -282,3 +282,17 @@ def test_bad_obstacles_are_refused_with_a_clear_message(straight_texture):
         scan(LidarWalls.from_track(straight_route()), pose, obstacles=bad)
     with pytest.raises(ValueError, match="seven"):
         render_camera(straight_texture, pose, obstacles=(np.zeros((2, 1)),) * 3)
+
+
+def test_randomised_frames_show_the_obstacles_too(straight_texture):
+    from laplab.sensors.randomize import RandomizationParams, render_randomized, sample_randomization
+    pose = np.array([[0.0, 0.0, 0.0]])
+    front = obstacles([[box_at(1.2, 0.0)]])
+    rng = np.random.default_rng(0)
+    identity = sample_randomization(rng, 1, RandomizationParams(enabled=False), CAMERA)
+    assert np.array_equal(render_randomized(straight_texture, pose, CAMERA, identity, rng, obstacles=front),
+                          render_camera(straight_texture, pose, CAMERA, obstacles=front))
+    jittered = sample_randomization(rng, 1, RandomizationParams(enabled=True, noise=0.0, blur=0.0), CAMERA)
+    with_box = render_randomized(straight_texture, pose, CAMERA, jittered, np.random.default_rng(1), obstacles=front)
+    without = render_randomized(straight_texture, pose, CAMERA, jittered, np.random.default_rng(1))
+    assert np.mean(with_box != without) > 0.05
