@@ -24,11 +24,11 @@ Reader = Callable[[np.ndarray], np.ndarray]  # car indices (K,) -> (K, *shape)
 def obstacle_rows(sim, cars: np.ndarray):
     """The obstacles the sensors of ``cars`` see: the rows of ``sim.obstacles`` (an attribute or a method
     giving a ``laplab.sim.obstacles.Obstacles`` of (N, K) arrays, or None in a time trial) for those
-    cars, as a tuple of seven (len(cars), K) arrays; None when the simulator has none."""
+    cars, as a tuple of seven (len(cars), K) arrays; None when the simulator has none (or K = 0)."""
     obstacles = getattr(sim, "obstacles", None)
     if callable(obstacles):
         obstacles = obstacles()
-    if obstacles is None:
+    if obstacles is None or np.shape(obstacles[6])[-1] == 0:  # a time trial: K = 0 slots
         return None
     return tuple(np.asarray(field)[cars] for field in obstacles)
 

@@ -32,8 +32,10 @@ def test_camera_and_lidar_observations_see_the_simulators_obstacles_per_car():
     sim = SimulatorWithObstacles(load_track("oval"), num_cars=3)
     sim.reset()
     spec = model_spec(metadata_from_dict({"sensor": ["FRONT_FACING_CAMERA", "LIDAR"]}))
-    sim.obstacles = None  # a time trial
+    sim.obstacles = no_obstacles(3)  # a time trial: K = 0
     before = ObservationBuilder(sim, spec, sensor_noise=False).observe()
+    assert obstacle_rows(sim, np.arange(3)) is None
+    sim.obstacles = None
     assert obstacle_rows(sim, np.arange(3)) is None
     obstacles = box_ahead_of(sim.poses(), car=1)
     sim.obstacles = lambda: obstacles  # what the race-type simulator provides (a method or an attribute)
