@@ -1,6 +1,7 @@
 """Sensor throughput on a real DeepRacer track, against Gymnasium's CarRacing-v3 as the peer.
 
     python3 bench/sensor_speed.py [--track reinvent_base] [--runs 7] [--seconds 0.5] [--look-only]
+                                  [--objects-only]
 
 One function per sensor returns table rows; ``main`` prints them. For every configuration and
 batch size N the figure is the median over ``runs`` runs (each run repeats the call for at least
@@ -10,7 +11,10 @@ its 96x96 observation every step); the last column is the ratio. Goal for the ca
 frames/s at N = 64 for the default 160x120 grey camera on 2 cores. Threaded figures collapse when
 other processes load the cores: check ``uptime`` first. The camera renders the track's look
 (laplab.sensors.look); ``--look-only`` measures just the default camera at N = 64 with laplab's old
-look (the panelled room) and with the track's look, in the same run.
+look (the panelled room) and with the track's look, in the same run. Rows "3 objects in view" give
+every car a box 0.8 m ahead, a bot car 1.6 m ahead and 0.25 m to the left and a box 2.5 m ahead and
+0.2 m to the right (object avoidance / head-to-bot); goal >= 10,000 camera frames/s at N = 64.
+``--objects-only`` measures the default camera and the lidar with and without them, in the same run.
 """
 
 from __future__ import annotations
@@ -115,6 +119,46 @@ def look_rows(route: np.ndarray, name: str, runs: int, seconds: float) -> list[R
     return rows
 
 
+def objects_ahead(poses: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Three obstacles in view of every car: (x, y, yaw, half_length, half_width, height, kind), each (N, 3)."""
+    from laplab.sensors.obstacle_look import BOT_CAR, BOX, BOX_SIZE, CAR_SIZE
+    ahead, left = np.array([0.8, 1.6, 2.5]), np.array([0.0, 0.25, -0.2])
+    c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
+    x = poses[:, 0:1] + ahead * c - left * s
+    y = poses[:, 1:2] + ahead * s + left * c
+    sizes = np.array([BOX_SIZE, CAR_SIZE, BOX_SIZE])
+    full = lambda values: np.broadcast_to(values, x.shape).copy()
+    return (x, y, full(poses[:, 2:3] + np.array([0.3, 0.0, -0.5])), full(sizes[:, 0] / 2), full(sizes[:, 1] / 2),
+            full(sizes[:, 2]), full(np.array([BOX, BOT_CAR, BOX])))
+
+
+def object_rows(route: np.ndarray, runs: int, seconds: float, name: str = "") -> list[Row]:
+    """The default camera (N = 1, 64, 256) and the lidar (N = 64) without and with 3 objects in view."""
+    from laplab.sensors.lidar import DEFAULT_LIDAR, LidarWalls, scan
+    texture, walls = texture_for_track(route, name=name), LidarWalls.from_track(route)
+    rng = np.random.default_rng(0)
+    rows = []
+    for n in (1, 64, 256):
+        poses = poses_on_track(route, n, rng)
+        objects = objects_ahead(poses)
+        out = np.empty((n, FRONT_FACING_CAMERA.height, FRONT_FACING_CAMERA.width), np.uint8)
+        calls = {}
+        for label, given in (("time trial", None), ("3 objects in view", objects)):
+            call = calls[label] = (lambda g: lambda: render_camera(texture, poses, out=out, obstacles=g))(given)
+            threaded, one_core = threaded_and_one_core(call, runs, seconds)
+            rows.append(Row("camera", f"160x120 grey, {label}", n, n / threaded, 1e6 * threaded, n / one_core))
+        if n == 64:
+            for label, (median, best) in interleaved_cpu_rates(calls, n, runs, seconds).items():
+                print(f"camera N=64, {label}: {median:,.0f} frames per CPU-second on one thread (median; best "
+                      f"{best:,.0f}), interleaved")
+    poses = poses_on_track(route, 64, rng)
+    for label, given in (("time trial", None), ("3 objects in view", objects_ahead(poses))):
+        call = (lambda g: lambda: scan(walls, poses, DEFAULT_LIDAR, rng, obstacles=g))(given)
+        threaded, one_core = threaded_and_one_core(call, runs, seconds)
+        rows.append(Row("lidar", f"64 beams, {label}", 64, 64 / threaded, 1e6 * threaded, 64 / one_core))
+    return rows
+
+
 def camera_rows(route: np.ndarray, runs: int, seconds: float, name: str = "") -> list[Row]:
     """Camera frames/s: 160x120 grey with the default anti-aliasing (mip levels), none, bilinear
     magnification, 2x2 supersampling, the stereo pair (one observation = two frames) and the 640x480
@@ -212,6 +256,7 @@ def main() -> None:
     parser.add_argument("--runs", type=int, default=7, help="runs per figure (the median is printed)")
     parser.add_argument("--seconds", type=float, default=0.5, help="minimum duration of one run")
     parser.add_argument("--look-only", action="store_true", help="only the camera at N = 64, old look vs new")
+    parser.add_argument("--objects-only", action="store_true", help="only the camera and lidar with 3 objects")
     args = parser.parse_args()
     route = np.load(TRACKS / f"{args.track}.npy")
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
@@ -220,7 +265,11 @@ def main() -> None:
     if args.look_only:
         print_table(look_rows(route, args.track, args.runs, args.seconds), None)
         return
+    if args.objects_only:
+        print_table(object_rows(route, args.runs, args.seconds, args.track), None)
+        return
     rows = camera_rows(route, args.runs, args.seconds, args.track) + lidar_rows(route, args.runs, args.seconds)
+    rows += object_rows(route, args.runs, args.seconds, args.track)
     rows += camera_env_rows(args.runs, args.seconds)
     peer = carracing_steps_per_second(args.runs, args.seconds)
     print_table(rows, peer)

@@ -2,7 +2,9 @@
 
 An :class:`ObservationBuilder` owns the spaces and readers for one sensor set. A single sensor gives
 a Box observation; several give a Dict keyed by DeepRacer's sensor names. ``STATE`` is computed by
-the simulator's step kernel; lidar and cameras are computed from the cars' poses when observed.
+the simulator's step kernel; lidar and cameras are computed from the cars' poses when observed, and
+see each car's obstacles (boxes, bot cars, other models' cars) when the simulator has them
+(:func:`obstacle_rows`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,18 @@ from laplab.env.spec import ModelSpec
 from laplab.sim.simulator import Simulator
 
 Reader = Callable[[np.ndarray], np.ndarray]  # car indices (K,) -> (K, *shape)
+
+
+def obstacle_rows(sim, cars: np.ndarray):
+    """The obstacles the sensors of ``cars`` see: the rows of ``sim.obstacles`` (an attribute or a method
+    giving a ``laplab.sim.obstacles.Obstacles`` of (N, K) arrays, or None in a time trial) for those
+    cars, as a tuple of seven (len(cars), K) arrays; None when the simulator has none (or K = 0)."""
+    obstacles = getattr(sim, "obstacles", None)
+    if callable(obstacles):
+        obstacles = obstacles()
+    if obstacles is None or np.shape(obstacles[6])[-1] == 0:  # a time trial: K = 0 slots
+        return None
+    return tuple(np.asarray(field)[cars] for field in obstacles)
 
 
 def take_rows(observations: Any, index: np.ndarray | slice) -> Any:
@@ -74,7 +88,8 @@ class ObservationBuilder:
         poses = self.sim.poses
 
         def read(cars: np.ndarray) -> np.ndarray:
-            ranges = scan(walls, poses()[cars], DEFAULT_LIDAR, rng=self.rng, parallel=False)
+            ranges = scan(walls, poses()[cars], DEFAULT_LIDAR, rng=self.rng, parallel=False,
+                          obstacles=obstacle_rows(self.sim, cars))
             return lidar_observation(sensor, ranges, lidar_config).astype(np.float32, copy=False)
         return read
 
@@ -87,11 +102,12 @@ class ObservationBuilder:
         texture = (texture_for_track(self.sim.track) if rand is None
                    else build_randomized_texture(self.sim.track, announced_look(self.sim.track).params, rand, rng))
 
-        def render(poses_now: np.ndarray) -> np.ndarray:  # (K, H, W, cameras) uint8
+        def render(cars: np.ndarray) -> np.ndarray:  # (K, H, W, cameras) uint8
+            poses_now, obstacles = poses()[cars], obstacle_rows(self.sim, cars)
             if rand is None:
-                return render_cameras(texture, poses_now, cameras)
+                return render_cameras(texture, poses_now, cameras, obstacles=obstacles)
             draw = sample_randomization(rng, len(poses_now), rand, cameras[0], texture.num_variants)
-            frames = render_randomized(texture, poses_now, cameras, draw, rng)
+            frames = render_randomized(texture, poses_now, cameras, draw, rng, obstacles=obstacles)
             return frames if frames.ndim == 4 else frames[..., None]
 
         per_frame = len(cameras)
@@ -105,7 +121,7 @@ class ObservationBuilder:
             fresh = (now != seen[cars]).any(axis=1)
             if fresh.any():
                 update = cars[fresh]
-                frames = render(poses()[update]).transpose(0, 3, 1, 2)
+                frames = render(update).transpose(0, 3, 1, 2)
                 new_episode = st.episode[update] != seen[update, 0]
                 if self.stack_size > 1:
                     stack[update[~new_episode], :-per_frame] = stack[update[~new_episode], per_frame:]

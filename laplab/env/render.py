@@ -46,4 +46,6 @@ class FrameRenderer:
         if self._texture is None:
             from laplab.sensors.look import texture_for_track
             self._texture = texture_for_track(self.sim.track)
-        return render_camera(self._texture, poses[self.car:self.car + 1], HUMAN_CAMERA)[0]
+        from laplab.env.observations import obstacle_rows
+        car = np.array([self.car])
+        return render_camera(self._texture, poses[car], HUMAN_CAMERA, obstacles=obstacle_rows(self.sim, car))[0]

@@ -15,6 +15,10 @@ Anti-aliasing options (cost per frame, relative to one sample per pixel without 
 - ``supersample=k``: k x k rays per pixel averaged (like rendering at k times the size and
   box-downsizing, as DeepRacer renders 640x480 and resizes to 160x120); costs k**2.
 
+Obstacles (DeepRacer's boxes and other cars, :mod:`laplab.sensors.obstacle_look`) are solid boxes
+standing on the ground, painted by a second pass over the pixels they may cover
+(:mod:`laplab.sensors.obstacle_kernel`); without obstacles that pass does not run.
+
 Frames: ``(N, H, W)`` uint8 grey (ITU-R 601 luma of the RGB texture) or ``(N, H, W, 3)`` RGB; row 0
 is the top of the image, column 0 its left. A plain-numpy version of the renderer, the parity oracle
 of the numba kernel, lives in tests/sensors/test_camera.py.
@@ -31,6 +35,9 @@ import numba
 import numpy as np
 
 from laplab.sensors.camera_kernel import SERIAL_BELOW_SAMPLES, render_kernel
+from laplab.sensors.obstacle_kernel import obstacle_pass
+from laplab.sensors.obstacle_look import (DEFAULT_OBSTACLE_LOOK, ObstacleBoxes, ObstacleLook, face_colours,
+                                          obstacle_boxes)
 from laplab.sensors.texture import TrackTexture
 
 MAX_GROUND_RANGE = 1000.0  # m: ground hits farther than this are treated as horizon (wall / sky)
@@ -237,9 +244,22 @@ def _check_variant(variant, n: int, texture: TrackTexture) -> np.ndarray:
     return variant
 
 
+class _Scene(NamedTuple):
+    """Obstacles of a batch as the kernels take them: checked boxes and (N, K, 5, 4) face colours."""
+
+    boxes: ObstacleBoxes
+    colours: np.ndarray
+
+
+def _scene(texture: TrackTexture, obstacles, n: int, look: ObstacleLook, caller: str) -> _Scene | None:
+    packed = obstacle_boxes(obstacles, n, caller)
+    return None if packed is None else _Scene(packed, face_colours(packed, texture.params.wall_lights, look))
+
+
 def _render_into(texture: TrackTexture, poses: np.ndarray, params: CameraParams, variant: np.ndarray,
-                 out: np.ndarray, plane: int | None) -> None:
-    """Render into out (N, H, W) from the grey texture (plane None) or colour plane 0/1/2."""
+                 out: np.ndarray, plane: int | None, scene: _Scene | None = None) -> None:
+    """Render into out (N, H, W) from the grey texture (plane None) or colour plane 0/1/2, then paint
+    the scene's obstacles over it."""
     rays, prep = camera_rays(params), _prepare(params, texture)
     threads = numba.get_num_threads()
     # A frame or two takes tens of microseconds: waking the other threads costs more than it saves.
@@ -250,6 +270,12 @@ def _render_into(texture: TrackTexture, poses: np.ndarray, params: CameraParams,
         render_kernel(texture.gray if plane is None else texture.rgb[plane], prep.shift, prep.offset, prep.stride,
                        prep.geom, prep.walls, rays.ground_x, rays.ground_y, rays.dir_x, rays.dir_y, rays.slope,
                        prep.row_has_ground, params.supersample, params.bilinear, poses, variant, out)
+        if scene is not None:
+            camera = np.array([params.mount_forward, params.mount_lateral, params.mount_up, math.cos(params.pitch),
+                               math.sin(params.pitch), params.focal_length])
+            values = np.ascontiguousarray(scene.colours[..., 3 if plane is None else plane])
+            obstacle_pass(scene.boxes.boxes, scene.boxes.kind, values, poses, camera, np.array(texture.room),
+                          rays.dir_x, rays.dir_y, rays.slope, params.supersample, out)
     finally:
         if small:
             numba.set_num_threads(threads)
@@ -269,26 +295,33 @@ def _output(out: np.ndarray | None, shape: tuple[int, ...], caller: str) -> np.n
 
 
 def render_camera(texture: TrackTexture, poses, params: CameraParams = FRONT_FACING_CAMERA,
-                  out: np.ndarray | None = None, variant=None) -> np.ndarray:
+                  out: np.ndarray | None = None, variant=None, obstacles=None,
+                  obstacle_look: ObstacleLook = DEFAULT_OBSTACLE_LOOK) -> np.ndarray:
     """Render one camera for N cars: poses (N, 3) (x, y, yaw of the rear-axle origin, m / rad).
 
     Returns (N, H, W) uint8 grey or (N, H, W, 3) uint8 RGB (into ``out`` when given, which must
     be C-contiguous of that shape). ``variant`` (N,) or scalar picks each car's colour variant of
-    ``texture`` (default 0). Deterministic.
+    ``texture`` (default 0). ``obstacles``: each car's K obstacles, seven (N, K) arrays x, y, yaw,
+    half_length, half_width, height, kind (a ``laplab.sim.obstacles.Obstacles``), drawn as solid
+    boxes in ``obstacle_look``'s colours lit by the texture's lights; None or all empty gives exactly
+    the frames without them. Deterministic.
     """
     poses = _check_poses(poses)
     variant = _check_variant(variant, poses.shape[0], texture)
     out = _output(out, frame_shape(params, poses.shape[0]), "render_camera")
+    scene = _scene(texture, obstacles, poses.shape[0], obstacle_look, "render_camera")
     for plane in [None] if params.grayscale else [0, 1, 2]:
-        _render_into(texture, poses, params, variant, out if plane is None else out[..., plane], plane)
+        _render_into(texture, poses, params, variant, out if plane is None else out[..., plane], plane, scene)
     return out
 
 
 def render_cameras(texture: TrackTexture, poses, cameras: tuple[CameraParams, ...],
-                   out: np.ndarray | None = None, variant=None) -> np.ndarray:
+                   out: np.ndarray | None = None, variant=None, obstacles=None,
+                   obstacle_look: ObstacleLook = DEFAULT_OBSTACLE_LOOK) -> np.ndarray:
     """Render grey cameras as channels: (N, H, W, len(cameras)) uint8 (stereo: left, right).
 
     This is DeepRacer's observation layout: (N, 120, 160, 1) for one camera, (N, 120, 160, 2) stereo.
+    ``obstacles`` and ``obstacle_look`` as in :func:`render_camera`.
     """
     if not cameras or not all(cam.grayscale for cam in cameras) or len({(c.width, c.height) for c in cameras}) != 1:
         raise ValueError("render_cameras: needs one or more grayscale CameraParams of one image size, got "
@@ -296,6 +329,7 @@ def render_cameras(texture: TrackTexture, poses, cameras: tuple[CameraParams, ..
     poses = _check_poses(poses)
     variant = _check_variant(variant, poses.shape[0], texture)
     out = _output(out, (poses.shape[0], cameras[0].height, cameras[0].width, len(cameras)), "render_cameras")
+    scene = _scene(texture, obstacles, poses.shape[0], obstacle_look, "render_cameras")
     for channel, cam in enumerate(cameras):
-        _render_into(texture, poses, cam, variant, out[..., channel], None)
+        _render_into(texture, poses, cam, variant, out[..., channel], None, scene)
     return out

@@ -6,8 +6,8 @@ and Gaussian noise of sigma 0.01 m. Angles are in the car frame, counter-clockwi
 front, so positive angles look left.
 
 Walls: laplab treats the inner and outer borders as walls the beams hit. (DeepRacer's Gazebo worlds
-have only painted borders; there the lidar sees objects, bot cars and the world's barriers. Use
-:meth:`LidarWalls.from_segments` to add such obstacles.)
+have only painted borders; there the lidar sees objects, bot cars and the world's barriers.) Boxes
+and other cars (``obstacles`` of :func:`scan`) stop the beams too.
 
 Range semantics follow Gazebo's ray sensor: a beam starts at ``min_range``, so a surface nearer
 than that is not seen; a beam that hits nothing within ``max_range`` reads ``max_range`` (Gazebo
@@ -26,6 +26,9 @@ from functools import cached_property
 
 import numba
 import numpy as np
+
+from laplab.sensors.obstacle_kernel import obstacle_ranges
+from laplab.sensors.obstacle_look import obstacle_boxes
 
 LIDAR_SENSORS = ("LIDAR", "SECTOR_LIDAR", "DISCRETIZED_SECTOR_LIDAR")
 LIDAR_CLIP = (0.15, 1.0)  # m: simapp's ObservationClippingFilter for LIDAR
@@ -328,8 +331,12 @@ def _add_noise(ranges: np.ndarray, params: LidarParams, rng: np.random.Generator
 
 
 def scan(walls: LidarWalls, poses: np.ndarray, params: LidarParams = DEFAULT_LIDAR,
-         rng: np.random.Generator | None = None, parallel: bool | None = None) -> np.ndarray:
+         rng: np.random.Generator | None = None, parallel: bool | None = None, obstacles=None) -> np.ndarray:
     """Lidar ranges of N cars: poses (N, 3) [x, y, yaw] of the model origin -> (N, num_beams) float32 m.
+
+    ``obstacles``: each car's K obstacles, seven (N, K) arrays x, y, yaw, half_length, half_width,
+    height, kind (a ``laplab.sim.obstacles.Obstacles``); a beam stops at the nearest box's side
+    (:func:`laplab.sensors.obstacle_kernel.obstacle_ranges`).
 
     Noise (``params.noise_std``) is drawn from ``rng`` only when one is given; ``rng=None`` gives the
     exact ranges. ``parallel``: use numba's threads (None: only for batches of 2048+ beams). Pass
@@ -344,6 +351,10 @@ def scan(walls: LidarWalls, poses: np.ndarray, params: LidarParams = DEFAULT_LID
     kernel(poses, params.beam_angles, params.mount_x, params.mount_y, params.min_range, params.max_range,
            walls.segments, walls.origin_x, walls.origin_y, walls.cell_size, walls.nx, walls.ny,
            walls.cell_start, walls.cell_segments, out)
+    packed = obstacle_boxes(obstacles, poses.shape[0], "lidar scan")
+    if packed is not None:
+        obstacle_ranges(packed.boxes, packed.kind, poses, params.beam_angles, params.mount_x, params.mount_y,
+                        params.min_range, out)
     return _add_noise(out, params, rng)
 
 

@@ -201,12 +201,13 @@ def is_identity(draw: FrameRandomization) -> bool:
 
 
 def render_randomized(texture: TrackTexture, poses, camera: CameraParams | tuple[CameraParams, ...],
-                      draw: FrameRandomization, rng: np.random.Generator) -> np.ndarray:
+                      draw: FrameRandomization, rng: np.random.Generator, obstacles=None) -> np.ndarray:
     """:func:`render_camera` (or, for a tuple of cameras, :func:`render_cameras`: stereo) with the
-    changes of ``draw``: (N, H, W), (N, H, W, 3) or (N, H, W, cameras) uint8."""
+    changes of ``draw``: (N, H, W), (N, H, W, 3) or (N, H, W, cameras) uint8. ``obstacles`` as in
+    :func:`render_camera` (they keep their colours; the photometric changes apply to them too)."""
     poses = jitter_poses(poses, draw)
     if isinstance(camera, tuple):
-        frames = render_cameras(texture, poses, camera, variant=draw.variant)
+        frames = render_cameras(texture, poses, camera, variant=draw.variant, obstacles=obstacles)
     else:
-        frames = render_camera(texture, poses, camera, variant=draw.variant)
+        frames = render_camera(texture, poses, camera, variant=draw.variant, obstacles=obstacles)
     return frames if is_identity(draw) else apply_photometric(frames, draw, rng)
