@@ -15,6 +15,7 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from laplab.console.auth import current_user, load_secret
+from laplab.console.error_pages import error_page, wants_html
 from laplab.console.limits import BodyLimit, LoginThrottle
 from laplab.console.service import ConsoleService, default_workers, threads_per_job
 from laplab.jobs.db import JobStore, User, laplab_home
@@ -113,6 +114,8 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
             return JSONResponse(status_code=400, content={"detail": {
                 "message": f"body: the request body cannot be read as JSON: {why}; send one JSON object of the "
                            "request's fields (docs/console.md lists them)", "field": "body"}})
+        if wants_html(request):
+            return error_page(request, exc.status_code, exc.detail)
         return await http_exception_handler(request, exc)
 
     @app.get("/openapi.json", include_in_schema=False)
