@@ -31,9 +31,10 @@ def _page(request: Request, template: str, user: User, **context) -> HTMLRespons
 
 def _defaults() -> dict:
     from laplab.agents.hyperparameters import Hyperparameters
-    from laplab.env.metadata import ALGORITHMS, ALL_SENSORS, NETWORKS, ModelMetadata
+    from laplab.env.metadata import ALGORITHMS, NETWORKS, SENSOR_CHOICES, ModelMetadata
     return {"metadata": ModelMetadata().to_dict(), "hyperparameters": Hyperparameters().to_dict(),
-            "sensors": ALL_SENSORS, "networks": NETWORKS, "algorithms": ALGORITHMS}
+            "sensors": ["+".join(choice) for choice in SENSOR_CHOICES], "networks": NETWORKS,
+            "algorithms": ALGORITHMS}
 
 
 def _model_key(request: Request, name: str, user: User) -> str:

@@ -16,6 +16,11 @@ CAMERA_SENSORS = ("FRONT_FACING_CAMERA", "STEREO_CAMERAS", "LEFT_CAMERA")
 LIDAR_SENSORS = ("LIDAR", "SECTOR_LIDAR", "DISCRETIZED_SECTOR_LIDAR")
 STATE_SENSOR = "STATE"  # laplab's own vector sensor (see laplab.sensors.state_vector)
 ALL_SENSORS = CAMERA_SENSORS + LIDAR_SENSORS + (STATE_SENSOR,)
+#: The sensor sets a model may have, as the console offers them: STATE, or a camera, or a camera with a lidar
+#: (DeepRacer's "camera" / "stereo camera" + "LiDAR" choices; validate_sensors accepts exactly these and
+#: STATE with a lidar).
+SENSOR_CHOICES = ((STATE_SENSOR,),) + tuple((camera,) for camera in CAMERA_SENSORS) + tuple(
+    (camera, lidar) for camera in ("FRONT_FACING_CAMERA", "STEREO_CAMERAS") for lidar in LIDAR_SENSORS)
 NETWORKS = ("DEEP_CONVOLUTIONAL_NETWORK_SHALLOW", "DEEP_CONVOLUTIONAL_NETWORK", "DEEP_CONVOLUTIONAL_NETWORK_DEEP")
 ALGORITHMS = ("clipped_ppo", "sac")
 #: The most camera frames one observation may stack (DeepRacer trains with 1; the memory of every

@@ -150,7 +150,7 @@ const Console = (() => {
     renderTracks();
 
     const meta = config?.model_metadata || defaults.metadata;
-    $("#sensor").value = meta.sensor[0]; $("#network").value = meta.neural_network; $("#algorithm").value = meta.training_algorithm;
+    $("#sensor").value = meta.sensor.join("+"); $("#network").value = meta.neural_network; $("#algorithm").value = meta.training_algorithm;
     const tbody = $("#actions tbody");
     const picture = () => drawActions($("#action-picture"), actions, continuous() ? {steer: [+$("#steer-low").value, +$("#steer-high").value], speed: [+$("#speed-low").value, +$("#speed-high").value]} : null);
     const continuous = () => document.querySelector('input[name="astype"]:checked').value === "continuous";
@@ -183,9 +183,9 @@ const Console = (() => {
     if (config) $("#max-time").value = (config.max_time_s / 60).toFixed(1);
 
     const metadata = () => continuous()
-      ? {...meta, sensor: [$("#sensor").value], neural_network: $("#network").value, training_algorithm: $("#algorithm").value, action_space_type: "continuous",
+      ? {...meta, sensor: $("#sensor").value.split("+"), neural_network: $("#network").value, training_algorithm: $("#algorithm").value, action_space_type: "continuous",
          action_space: {steering_angle: {low: +$("#steer-low").value, high: +$("#steer-high").value}, speed: {low: +$("#speed-low").value, high: +$("#speed-high").value}}}
-      : {...meta, sensor: [$("#sensor").value], neural_network: $("#network").value, training_algorithm: $("#algorithm").value, action_space_type: "discrete", action_space: actions};
+      : {...meta, sensor: $("#sensor").value.split("+"), neural_network: $("#network").value, training_algorithm: $("#algorithm").value, action_space_type: "discrete", action_space: actions};
     const hyper = () => { const out = {...hp}; for (const n of document.querySelectorAll("[data-hp]")) out[n.dataset.hp] = n.tagName === "SELECT" && n.dataset.hp === "batch_size" ? +n.value : n.type === "number" ? +n.value : n.value; return out; };
     const showErrors = e => {
       for (const n of document.querySelectorAll(".field-error")) n.textContent = "";
