@@ -74,6 +74,9 @@ class EvaluationSummary:
       ``gap_to_optimal`` = best_lap / optimal_lap_time (1.0 = as fast as the race line).
       The race line's lap is a flying lap; ``standing_start_lap_time`` (s) is the same line driven
       from rest, the fastest possible lap for a trial that starts at rest.
+    - ``identical_trials``: two or more trials that all ended alike, to the step (a greedy policy from the
+      same start drives the same lap in laplab's noise-free physics; DeepRacer's trials differ by its
+      simulator's noise).
     """
 
     trials: int
@@ -89,6 +92,7 @@ class EvaluationSummary:
     optimal_lap_time: float | None = None
     gap_to_optimal: float | None = None
     standing_start_lap_time: float | None = None
+    identical_trials: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -146,7 +150,15 @@ def summarize(trials: list[TrialResult] | tuple[TrialResult, ...],
         reset_count=int(sum(t.reset_count for t in trials)),
         penalty_time=float(sum(t.penalty_time for t in trials)),
         optimal_lap_time=optimal_lap_time, gap_to_optimal=gap_to_optimal(best, optimal_lap_time),
-        standing_start_lap_time=standing_start_lap_time)
+        standing_start_lap_time=standing_start_lap_time, identical_trials=_all_alike(trials))
+
+
+def _all_alike(trials) -> bool:
+    """Whether two or more trials ended alike: status, steps, completion and incidents."""
+    def outcome(t: TrialResult) -> tuple:
+        return (t.status, t.steps, round(t.completion, 6), t.off_track_count, t.reversed_count,
+                t.immobilized_count, t.crash_count, t.reset_count, round(t.penalty_time, 6))
+    return len(trials) > 1 and len({outcome(t) for t in trials}) == 1
 
 
 def format_seconds(value: float | None) -> str:
@@ -188,4 +200,6 @@ def summary_lines(summary: EvaluationSummary) -> list[str]:
         f"average completion {summary.average_completion:.1f} %   off track {summary.off_track_count}   "
         f"resets {summary.reset_count}   penalties {summary.penalty_time:g} s",
         f"optimal lap {optimal}   gap to optimal {format_gap(summary.gap_to_optimal)}",
-    ]
+    ] + ([f"the {summary.trials} trials were identical: the greedy policy drives the same lap from the same "
+          "start in laplab's noise-free physics (DeepRacer's trials differ by its simulator's noise); "
+          "--stochastic samples the actions"] if summary.identical_trials else [])

@@ -259,3 +259,16 @@ def test_console_trial_limit_and_force():
     with pytest.raises(EvaluationError, match="--force"):
         EvaluationSettings(trials=6)
     assert EvaluationSettings(trials=6, force=True).trials == 6
+
+
+def test_a_summary_says_when_its_trials_were_identical():
+    from laplab.evaluate.summary import TrialResult, summarize, summary_lines
+
+    def trial(index, steps, lap=10.0):
+        return TrialResult(index, "lap_complete", lap, lap, index * lap, 100.0, steps=steps)
+
+    same = summarize([trial(0, 150), trial(1, 150), trial(2, 150)])
+    assert same.identical_trials and "the 3 trials were identical" in summary_lines(same)[-1]
+    varied = summarize([trial(0, 150), trial(1, 151, 10.07), trial(2, 150)])
+    assert not varied.identical_trials and "identical" not in " ".join(summary_lines(varied))
+    assert not summarize([trial(0, 150)]).identical_trials  # one trial is not "identical trials"

@@ -345,9 +345,10 @@ const Console = (() => {
     $("#stop").addEventListener("click", async () => { try { await api("POST", `/api/models/${name}/stop`); toast("stopping: the model keeps its last checkpoint"); refresh(); } catch (e) { toast(e.message); } });
     $("#resume").addEventListener("click", async () => { try { await api("POST", `/api/models/${name}/resume`, {}); toast("resumed"); refresh(); } catch (e) { toast(e.message); } });
     // The league's figure when 3 trials in a row finished, else the best lap, else the completion.
-    const evaluationHeadline = s => !s ? "" : s.average_3 != null ? ` · average of 3 laps ${lap(s.average_3)}`
+    const evaluationHeadline = s => (!s ? "" : s.average_3 != null ? ` · average of 3 laps ${lap(s.average_3)}`
       : s.best_lap != null ? ` · best lap ${lap(s.best_lap)} (${s.completed} of ${s.trials} trials completed)`
-      : ` · no lap completed (${fmt(s.average_completion, 1)} % on average)`;
+      : ` · no lap completed (${fmt(s.average_completion, 1)} % on average)`)
+      + (s && s.identical_trials ? ` · the ${s.trials} trials were identical (a greedy policy from the same start)` : "");
     async function loadEvaluations() {
       const list = await api("GET", `/api/models/${name}/evaluations`);
       $("#evaluations").replaceChildren(...list.slice().reverse().map(ev => el("div", {class: "evaluation", "data-evaluation": ev.id},
