@@ -87,7 +87,7 @@ class LiveFeed:
         if now - self._last_pose_time >= 1.0 / POSES_HZ:
             self._last_pose_time = now
             self._seq += 1
-            self.files.write_poses({"seq": self._seq, "t": time.time(), "evaluation": False,
+            self.files.write_poses({"seq": self._seq, "t": time.time(), "evaluation": bool(frame.evaluation),
                                     "cars": [[round(float(x), 3), round(float(y), 3), round(float(h), 3)]
                                              for x, y, h in frame.poses]})
         if self.camera is not None and now - self._last_camera_time >= 1.0 / CAMERA_HZ:

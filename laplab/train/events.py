@@ -5,7 +5,7 @@ these events to its listeners (:meth:`Trainer.subscribe`). The model folder's fi
 listener (:class:`laplab.train.recorder.ModelFolderRecorder`); a terminal display, a web console or an
 object store are others. A listener implements any subset of the ``on_*`` methods of
 :class:`TrainerListener`; they run in the trainer's thread, in subscription order, and should return
-quickly (``on_poses`` runs after every simulation step of the collection).
+quickly (``on_poses`` runs after every simulation step of the collection and of the evaluation laps).
 """
 
 from __future__ import annotations
@@ -113,11 +113,13 @@ class PhaseProgress:
 @dataclass(frozen=True)
 class PosesFrame:
     """The cars of the collection after one step: ``poses`` (N, 3) x m, y m, yaw rad of the model
-    origins, and ``sim_time`` (s since this iteration's collection began)."""
+    origins, and ``sim_time`` (s since this iteration's collection began); ``evaluation``: the cars are
+    the iteration's evaluation laps (greedy policy), not its training episodes."""
 
     iteration: int
     poses: np.ndarray
     sim_time: float
+    evaluation: bool = False
 
 
 class TrainerListener(Protocol):

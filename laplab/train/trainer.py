@@ -159,15 +159,15 @@ class Trainer:
             if handler is not None:
                 handler(payload)
 
-    def _poses_emitter(self):
-        """``emit(poses, sim_time)``: the running collection's cars as a :class:`PosesFrame` to the
-        listeners; None when none listens (no frame is then made)."""
+    def _poses_emitter(self, evaluation: bool = False):
+        """``emit(poses, sim_time)``: the running collection's (or evaluation's) cars as a
+        :class:`PosesFrame` to the listeners; None when none listens (no frame is then made)."""
         if not any(getattr(listener, "on_poses", None) is not None for listener in self._listeners):
             return None
-        iteration = self.iteration + 1
+        iteration = self.iteration + (0 if evaluation else 1)  # evaluation runs after the iteration's count
 
         def emit(poses, sim_time) -> None:
-            self._emit("on_poses", PosesFrame(iteration, poses, sim_time))
+            self._emit("on_poses", PosesFrame(iteration, poses, sim_time, evaluation))
         return emit
 
     def _poses_hook(self, started: float):
@@ -233,12 +233,14 @@ class Trainer:
         if self.evaluator is not None:  # every track of a multi-track job (laplab.cluster)
             return self.evaluator.evaluate(self._policy(True))
         starts = np.arange(self.config.eval_episodes) / self.config.eval_episodes
-        hook = None
+        hook = emit_poses = self._poses_emitter(evaluation=True)  # the live view shows the laps too
         if started is not None:
             total = self.eval_sim.num_cars
             self._progress(started, "evaluate", 0, total, force=True)
 
             def hook(poses, sim_time) -> None:
+                if emit_poses is not None:
+                    emit_poses(poses, sim_time)
                 if self._progress_due():
                     done, steps = episodes_done_and_steps(self.eval_sim.state)
                     self._progress(started, "evaluate", done, total, steps)

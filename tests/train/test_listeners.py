@@ -66,7 +66,10 @@ def test_a_trainer_without_a_folder_reports_everything_to_its_listeners(tmp_path
     per_iteration = [k for k in kinds[1:] if k != "poses"]
     assert per_iteration == ["episodes", "checkpoint", "iteration"] * 2
     poses = [event for kind, event in recorder.events if kind == "poses"]
+    laps = [p for p in poses if p.evaluation]  # the evaluation laps are shown too, marked as such
+    poses = [p for p in poses if not p.evaluation]
     assert all(isinstance(p, PosesFrame) and p.poses.shape == (2, 3) for p in poses)
+    assert {p.iteration for p in laps} == {1, 2} and all(p.poses.shape == (config.eval_episodes, 3) for p in laps)
     first = [p for p in poses if p.iteration == 1]
     assert len(first) > 0 and np.allclose(np.diff([p.sim_time for p in first]), 1 / 15)
     episodes = [e for kind, e in recorder.events if kind == "episodes"]

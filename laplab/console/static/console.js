@@ -259,6 +259,10 @@ const Console = (() => {
     return {
       async setTrack(name) { try { outline = await api("GET", `/api/tracks/${encodeURIComponent(name.replace("@reversed", ""))}/outline`); fit(); } catch (e) { outline = null; } draw(); },
       update(doc) { cars = doc.cars; evaluation = doc.evaluation; canvas.dataset.frames = String(+(canvas.dataset.frames || 0) + 1);
+        const note = $("#live-note");  // what the cars are
+        if (note) note.textContent = doc.evaluation
+          ? `Evaluation laps (green): ${cars.length === 1 ? "the car" : `${cars.length} cars`} driving the model's greedy policy${doc.trial ? `, trial ${doc.trial}` : ""}.`
+          : `${cars.length} cars, each its own training episode of this iteration, driven together in one simulator (they do not meet).`;
         canvas.dataset.lastCar = JSON.stringify(cars[0] || null); draw(); },
       draw,
     };
