@@ -81,10 +81,11 @@ def test_the_default_home_that_is_a_file_says_the_variable_is_unset(tmp_path, mo
     assert "LAPLAB_HOME is not set" in str(one_paragraph_error({}))
 
 
-@pytest.mark.skipif(os.geteuid() == 0, reason="root can write to any folder")
-def test_a_home_that_cannot_be_written_is_one_paragraph(tmp_path):
+def test_a_home_that_cannot_be_written_is_one_paragraph(tmp_path, monkeypatch):
     locked = tmp_path / "locked"
     locked.mkdir(mode=0o500)
+    if os.geteuid() == 0:  # root may write anywhere: a folder laplab may not write to, as the system says
+        monkeypatch.setattr(os, "access", lambda path, mode: Path(path) != locked)
     try:
         assert "not writable" in str(one_paragraph_error({"LAPLAB_HOME": str(locked)}))
         assert "cannot be made" in str(one_paragraph_error({"LAPLAB_HOME": str(locked / "home")}))
@@ -125,3 +126,22 @@ def test_the_python_api_starts_its_jobs_with_the_settings_in_force(tmp_path, mon
     with use_settings(Settings.at(tmp_path / "notebook")):
         api._run(["leaderboard"], "leaderboard")
     assert seen["env"]["LAPLAB_HOME"] == str(tmp_path / "notebook")
+
+
+def test_a_console_job_gets_its_folders_from_the_settings(tmp_path, monkeypatch):
+    from laplab.jobs.db import Job
+    from laplab.jobs.runner import LocalProcessRunner, job_folder, job_mounts, models_dir, owner_cache
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("LAPLAB_HOME", "home")  # relative: a job's process starts in its own folder
+    monkeypatch.delenv("LAPLAB_MODELS", raising=False)
+    home = tmp_path / "home"
+    job = Job(3, "train", "m1", 7, "queued", 0.0, {}, 0.0, None, None, None, None, None, None)
+    assert (job_folder(3), models_dir(), owner_cache(7)) == (home / "jobs" / "3", home / "models",
+                                                          home / "sandbox" / "user-7" / "cache")
+    plain = LocalProcessRunner(sandbox=False).environment(job)
+    assert plain["LAPLAB_HOME"] == str(home) and "LAPLAB_MODELS" not in plain
+    assert plain["NUMBA_CACHE_DIR"] == str(home / "sandbox" / "user-7" / "cache" / "numba")
+    confined = LocalProcessRunner(sandbox=True).environment(job)
+    assert confined["LAPLAB_HOME"] == "/tmp/laplab" and confined["NUMBA_CACHE_DIR"] == "/tmp/laplab/cache/numba"
+    (home / "tracks").mkdir(parents=True)
+    assert job_mounts(job).readonly == {str(home / "tracks"): "/tmp/laplab/tracks"}
