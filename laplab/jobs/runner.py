@@ -26,7 +26,7 @@ from typing import Protocol
 from laplab.jobs.db import Job
 from laplab.jobs.confinement import SANDBOX_HOME, JobLimits, Mounts, bubblewrap_works, clean_environment, start_confined
 from laplab.jobs.supervisor import ENV_LIMITS
-from laplab.settings import current_settings
+from laplab.settings import Settings, current_settings
 
 CRASH_LOG = "crash.txt"  # faulthandler's dump of a job that crashed, in its folder
 
@@ -176,7 +176,7 @@ class LocalProcessRunner:
     def environment(self, job: Job, on_cluster: bool = False) -> dict[str, str]:
         """The variables a job's process sees (:func:`clean_environment`, plus its home, numba cache,
         torch threads and, on a Ray cluster, the cluster's address)."""
-        where = {"LAPLAB_HOME": SANDBOX_HOME} if self.sandbox else current_settings().to_env()
+        where = (Settings.at(SANDBOX_HOME) if self.sandbox else current_settings()).to_env()
         return clean_environment({**where,
                                   "NUMBA_CACHE_DIR": f"{SANDBOX_HOME}/cache/numba" if self.sandbox
                                   else str(owner_cache(job.owner) / "numba"),

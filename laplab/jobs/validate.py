@@ -63,7 +63,7 @@ def validate_confined(source: str, track: str | None, model_metadata: dict | Non
                       sandbox: bool | None = None) -> dict:
     """Run the validation in a confined child process; returns its answer (a dict as above)."""
     from laplab.jobs.confinement import SANDBOX_HOME, JobLimits, Mounts, bubblewrap_works, clean_environment, confined_command, limits_preexec
-    from laplab.settings import current_settings
+    from laplab.settings import Settings, current_settings
     settings = current_settings()
     use = bubblewrap_works() if sandbox is None else sandbox
     readonly = {}
@@ -78,7 +78,7 @@ def validate_confined(source: str, track: str | None, model_metadata: dict | Non
     seed(cache / "numba", settings.home)
     try:
         mounts = Mounts({str(scratch): f"{SANDBOX_HOME}/job", str(cache): f"{SANDBOX_HOME}/cache"}, readonly)
-        where = {"LAPLAB_HOME": SANDBOX_HOME} if use else settings.to_env()
+        where = (Settings.at(SANDBOX_HOME) if use else settings).to_env()
         env = clean_environment({**where, "NUMBA_CACHE_DIR": f"{SANDBOX_HOME}/cache/numba" if use else str(cache / "numba")},
                                 sandboxed=use)
         command = confined_command([sys.executable, "-m", "laplab.jobs.validate"], mounts, use)
