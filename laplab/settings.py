@@ -6,9 +6,10 @@ race-line cache) asks :func:`current_settings`; nothing else reads ``LAPLAB_HOME
     home        ``$LAPLAB_HOME`` when set and not empty, else ``~/.laplab``; ``~`` is expanded and a
                 relative path is taken from the current folder (made absolute once, here)
     models_dir  ``$LAPLAB_MODELS`` when set and not empty, else ``home/models``
-    tracks_dir  ``home/tracks``        cache_dir    ``home/cache`` (race lines; ``cache/store``: the
-    database    ``home/laplab.db``                   local copies of ``--store`` commands)
-    jobs_dir    ``home/jobs``          console_dir  ``home/console``      sandbox_dir ``home/sandbox``
+    tracks_dir  ``home/tracks``        imported and fetched tracks
+    cache_dir   ``home/cache``         race lines; ``cache/store``: the ``--store`` commands' local copies
+    database    ``home/laplab.db``     the console's users and jobs
+    jobs_dir    ``home/jobs``          console_dir ``home/console``       sandbox_dir ``home/sandbox``
 
 ``home`` is checked when it is read: a file, or a folder laplab cannot write, is a one-paragraph
 :class:`~laplab.errors.UserError` naming ``LAPLAB_HOME``. A command that keeps its models elsewhere
