@@ -75,6 +75,12 @@ def _laplab(*args: str) -> list[str]:
     return [sys.executable, "-m", "laplab.cli", *args]
 
 
+def _environment() -> dict[str, str]:
+    """A job process's variables: this one's, with the settings in force (laplab.settings.use_settings)."""
+    from laplab.settings import current_settings
+    return current_settings().child_environment()
+
+
 def _store_args(store: str | None) -> list[str]:
     return ["--store", store] if store else []
 
@@ -118,7 +124,7 @@ class TrainingJob:
         log = Path(log_folder or files.reward_function.parent) / f"{name}-training.log"
         with open(log, "wb") as out:
             process = subprocess.Popen(_laplab(*args, *extra_args), stdout=out, stderr=subprocess.STDOUT,
-                                       stdin=subprocess.DEVNULL)
+                                       stdin=subprocess.DEVNULL, env=_environment())
         return cls(name, process, log, store)
 
     def status(self) -> str:
@@ -190,7 +196,7 @@ def training_metrics(name: str, store: str | None = None) -> list[dict[str, Any]
 
 
 def _run(args: list[str], what: str) -> str:
-    done = subprocess.run(_laplab(*args), capture_output=True, text=True, stdin=subprocess.DEVNULL)
+    done = subprocess.run(_laplab(*args), capture_output=True, text=True, stdin=subprocess.DEVNULL, env=_environment())
     if done.returncode != 0:  # the command's own paragraph, without libraries' log lines before it
         lines = (done.stderr.strip() or done.stdout.strip()).splitlines()
         ours = [i for i, line in enumerate(lines) if line.startswith("laplab")]

@@ -27,6 +27,20 @@ def test_reward_does_not_import_env():
     assert not {f: m for f, m in bad.items() if m}
 
 
+def test_the_settings_import_nothing_of_laplab_but_its_errors():
+    # laplab/settings.py sits below store/ (the bottom layer), so every layer may ask it where files live
+    assert laplab_imports(PACKAGE / "settings.py") <= {"laplab.errors"}
+    assert laplab_imports(PACKAGE / "errors.py") == set()
+
+
+def test_only_the_settings_read_or_write_laplab_home():
+    import re
+    access = re.compile(r"""(environ\s*(\.\w+\s*\(|\[)|getenv\s*\(|putenv\s*\()\s*["'](LAPLAB_HOME|LAPLAB_MODELS)["']""")
+    readers = {str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("*.py") if access.search(p.read_text())}
+    assert not readers, readers  # laplab.settings.current_settings() is the one way (to_env() for children)
+    assert access.search('os.environ["LAPLAB_HOME"] = x') and access.search("os.environ.get('LAPLAB_MODELS')")
+
+
 def test_commands_take_user_error_from_below_the_cli():
     bad = {f: mods for f, mods in imports_of("commands").items() if "laplab.cli" in mods}
     assert not bad

@@ -2,7 +2,8 @@
 S3-compatible object store instead of ``$LAPLAB_HOME/models`` (docs/store.md).
 
 A command with a store works on a private local copy (``$LAPLAB_HOME/cache/store/<command>-<pid>-<hex>``,
-which ``$LAPLAB_MODELS`` points the model layout at while the command runs): it pulls what it needs from
+the models folder of the settings it runs with: laplab.settings.use_settings, ``os.environ`` untouched):
+it pulls what it needs from
 the bucket first (laplab.store.remote), runs exactly as on local folders, publishes what it wrote
 (a job: as it writes it, after every iteration; evaluate: its evaluation at the end) and removes the
 copy. A copy whose upload failed is kept, and the error says where. Jobs also hold the model's lock
@@ -18,10 +19,10 @@ import shutil
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from pathlib import Path
 
 from laplab.errors import UserError
-from laplab.store.layout import MODELS_ROOT_ENV, ModelFolder, validate_model_name
+from laplab.settings import Settings, current_settings, use_settings
+from laplab.store.layout import ModelFolder, validate_model_name
 from laplab.store.lock import ModelBusyError
 from laplab.store.remote import FolderSync, RemoteModels
 from laplab.store.s3 import STORE_ENV, ObjectStore, StoreError, parse_store_url
@@ -51,13 +52,14 @@ def without_traces(rel: str) -> bool:
 class StoreSession:
     """One command's use of the store at ``url``: pulls, jobs' locks and syncs, the local copy."""
 
-    def __init__(self, url: str, command: str):
+    def __init__(self, url: str, command: str, settings: Settings | None = None):
         self.store = ObjectStore(parse_store_url(url))
         self.store.check()
         self.remote = RemoteModels(self.store)
-        home = Path(os.environ.get("LAPLAB_HOME") or "~/.laplab").expanduser()
-        self.root = home / "cache" / "store" / f"{command}-{os.getpid()}-{secrets.token_hex(4)}"
+        base = current_settings() if settings is None else settings
+        self.root = base.cache_dir / "store" / f"{command}-{os.getpid()}-{secrets.token_hex(4)}"
         self.root.mkdir(parents=True)
+        self.settings = base.with_models_dir(self.root)  # what the command runs with: models in the copy
         self.syncs: list[FolderSync] = []
         self.locks: list[S3ModelLock] = []
         self.keep = False
@@ -130,19 +132,20 @@ class StoreSession:
 def store_session(args: argparse.Namespace, command: str) -> Iterator[StoreSession | None]:
     """The command's :class:`StoreSession` when ``--store`` or ``$LAPLAB_STORE`` is set, else None.
 
-    While it is open, model names resolve to its local copy; on a normal exit what the command wrote
-    is published. Store errors and a model locked by another job become one-paragraph UserErrors."""
+    While it is open, model names resolve to its local copy (``session.settings`` are in force, see
+    laplab.settings.use_settings); on a normal exit what the command wrote is published. Store errors
+    and a model locked by another job become one-paragraph UserErrors."""
     url = getattr(args, "store", None) or os.environ.get(STORE_ENV)
     if not url:
         yield None
         return
-    session, previous = None, os.environ.get(MODELS_ROOT_ENV)
+    session = None
     try:
         session = StoreSession(url, command)
-        os.environ[MODELS_ROOT_ENV] = str(session.root)
         finished = False
         try:
-            yield session
+            with use_settings(session.settings):
+                yield session
             finished = True
             session.finish()
         finally:
@@ -154,9 +157,5 @@ def store_session(args: argparse.Namespace, command: str) -> Iterator[StoreSessi
     except (StoreError, ModelBusyError) as exc:
         raise UserError(str(exc), field=getattr(exc, "field", None) or "--store") from None
     finally:
-        if previous is None:
-            os.environ.pop(MODELS_ROOT_ENV, None)
-        else:
-            os.environ[MODELS_ROOT_ENV] = previous
         if session is not None:
             session.close()

@@ -10,8 +10,8 @@ import tempfile
 from pathlib import Path
 from typing import BinaryIO
 
-from laplab.jobs.db import laplab_home
 from laplab.jobs.confinement import JobLimits, clean_environment, limits_preexec
+from laplab.settings import current_settings
 
 EXPORT_TIMEOUT_S = 300.0
 MAX_IMPORT_BYTES = 2 * 1024 ** 3
@@ -22,7 +22,7 @@ class ExportError(ValueError):
 
 
 def _laplab(args: list[str], cwd: Path) -> str:
-    env = clean_environment({"LAPLAB_HOME": str(laplab_home())}, sandboxed=False)
+    env = clean_environment(current_settings().to_env(), sandboxed=False)
     try:
         done = subprocess.run([sys.executable, "-m", "laplab.cli", *args], capture_output=True, env=env, cwd=cwd,
                               timeout=EXPORT_TIMEOUT_S, preexec_fn=limits_preexec(JobLimits.console(cpu_seconds=600)))

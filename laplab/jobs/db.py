@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from laplab.settings import current_settings
+
 JOB_KINDS = ("train", "clone", "evaluate", "resume", "export")
 JOB_STATUSES = ("queued", "running", "stopping", "done", "failed", "interrupted")
 ACTIVE_STATUSES = ("queued", "running", "stopping")
@@ -81,11 +83,12 @@ class Job:
 
 
 def laplab_home() -> Path:
-    return Path(os.environ.get("LAPLAB_HOME") or "~/.laplab").expanduser()
+    """laplab's folder (``$LAPLAB_HOME``, default ``~/.laplab``: laplab/settings.py)."""
+    return current_settings().home
 
 
 def database_path() -> Path:
-    return laplab_home() / "laplab.db"
+    return current_settings().database
 
 
 def _sha256(text: str) -> str:

@@ -23,9 +23,10 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Protocol
 
-from laplab.jobs.db import Job, laplab_home
+from laplab.jobs.db import Job
 from laplab.jobs.confinement import SANDBOX_HOME, JobLimits, Mounts, bubblewrap_works, clean_environment, start_confined
 from laplab.jobs.supervisor import ENV_LIMITS
+from laplab.settings import Settings, current_settings
 
 CRASH_LOG = "crash.txt"  # faulthandler's dump of a job that crashed, in its folder
 
@@ -77,15 +78,15 @@ def overtime_message(limit_s: float, margin_s: float) -> str:
 
 
 def job_folder(job_id: int) -> Path:
-    return laplab_home() / "jobs" / str(job_id)
+    return current_settings().jobs_dir / str(job_id)
 
 
 def models_dir() -> Path:
-    return laplab_home() / "models"
+    return current_settings().models_dir
 
 
 def owner_cache(owner: int) -> Path:
-    return laplab_home() / "sandbox" / f"user-{owner}" / "cache"
+    return current_settings().sandbox_dir / f"user-{owner}" / "cache"
 
 
 READ_ONLY_KINDS = ("export",)
@@ -103,12 +104,12 @@ def job_mounts(job: Job) -> Mounts:
     cache = owner_cache(job.owner)
     cache.mkdir(parents=True, exist_ok=True)
     from laplab.jobs.warmup import seed
-    seed(cache / "numba", laplab_home())
+    seed(cache / "numba", current_settings().home)
     writable[str(cache)] = f"{SANDBOX_HOME}/cache"
     source = job.params.get("source")
     if source:
         readonly[str((models_dir() / source).resolve())] = f"{SANDBOX_HOME}/models/{source}"
-    tracks = laplab_home() / "tracks"
+    tracks = current_settings().tracks_dir
     if tracks.is_dir():
         readonly[str(tracks)] = f"{SANDBOX_HOME}/tracks"
     return Mounts(writable, readonly)
@@ -175,9 +176,9 @@ class LocalProcessRunner:
     def environment(self, job: Job, on_cluster: bool = False) -> dict[str, str]:
         """The variables a job's process sees (:func:`clean_environment`, plus its home, numba cache,
         torch threads and, on a Ray cluster, the cluster's address)."""
-        home = SANDBOX_HOME if self.sandbox else str(laplab_home())
-        return clean_environment({"LAPLAB_HOME": home,
-                                  "NUMBA_CACHE_DIR": f"{home}/cache/numba" if self.sandbox
+        where = (Settings.at(SANDBOX_HOME) if self.sandbox else current_settings()).to_env()
+        return clean_environment({**where,
+                                  "NUMBA_CACHE_DIR": f"{SANDBOX_HOME}/cache/numba" if self.sandbox
                                   else str(owner_cache(job.owner) / "numba"),
                                   "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS") or str(self.threads_per_job),
                                   **(self.cluster.job_environment() if on_cluster else {})}, sandboxed=self.sandbox)

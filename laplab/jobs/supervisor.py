@@ -231,7 +231,10 @@ def _start_fork(job: Callable[[], int], limits: JobLimits, crash_log: str) -> _C
 
 def _start_exec(argv: Sequence[str], limits: JobLimits, crash_log: str, env: dict | None) -> _Child:
     status_read, status_write = os.pipe()
-    environment = dict(os.environ if env is None else env)
+    if env is None:  # this process's environment, with the settings in force (laplab.settings)
+        from laplab.settings import current_settings
+        env = current_settings().child_environment()
+    environment = dict(env)
     environment[ENV_LIMITS] = json.dumps({**asdict(limits), "status_fd": status_write, "crash_log": crash_log})
     popen = subprocess.Popen([sys.executable, "-m", "laplab.cli", *argv], env=environment, pass_fds=(status_write,))
     os.close(status_write)

@@ -62,11 +62,12 @@ def main() -> int:
 def validate_confined(source: str, track: str | None, model_metadata: dict | None, owner: int,
                       sandbox: bool | None = None) -> dict:
     """Run the validation in a confined child process; returns its answer (a dict as above)."""
-    from laplab.jobs.db import laplab_home
     from laplab.jobs.confinement import SANDBOX_HOME, JobLimits, Mounts, bubblewrap_works, clean_environment, confined_command, limits_preexec
+    from laplab.settings import Settings, current_settings
+    settings = current_settings()
     use = bubblewrap_works() if sandbox is None else sandbox
     readonly = {}
-    tracks = laplab_home() / "tracks"
+    tracks = settings.tracks_dir
     if tracks.is_dir():
         readonly[str(tracks)] = f"{SANDBOX_HOME}/tracks"
     scratch = Path(tempfile.mkdtemp(prefix="laplab-validate-"))
@@ -74,11 +75,11 @@ def validate_confined(source: str, track: str | None, model_metadata: dict | Non
     cache = owner_cache(owner)  # never shared between users (numba's cache is code)
     cache.mkdir(parents=True, exist_ok=True)
     from laplab.jobs.warmup import seed
-    seed(cache / "numba", laplab_home())
+    seed(cache / "numba", settings.home)
     try:
         mounts = Mounts({str(scratch): f"{SANDBOX_HOME}/job", str(cache): f"{SANDBOX_HOME}/cache"}, readonly)
-        home = SANDBOX_HOME if use else str(laplab_home())
-        env = clean_environment({"LAPLAB_HOME": home, "NUMBA_CACHE_DIR": f"{home}/cache/numba" if use else str(cache / "numba")},
+        where = (Settings.at(SANDBOX_HOME) if use else settings).to_env()
+        env = clean_environment({**where, "NUMBA_CACHE_DIR": f"{SANDBOX_HOME}/cache/numba" if use else str(cache / "numba")},
                                 sandboxed=use)
         command = confined_command([sys.executable, "-m", "laplab.jobs.validate"], mounts, use)
         request = json.dumps({"source": source, "track": track, "model_metadata": model_metadata})

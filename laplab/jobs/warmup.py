@@ -54,11 +54,11 @@ def start_warmup(home: Path) -> subprocess.Popen | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import os
     from dataclasses import replace
+
+    from laplab.settings import Settings, use_settings
     cache = Path((argv or sys.argv[1:])[0])
-    with tempfile.TemporaryDirectory(prefix="laplab-warmup-") as scratch:
-        os.environ["LAPLAB_HOME"] = scratch
+    with tempfile.TemporaryDirectory(prefix="laplab-warmup-") as scratch, use_settings(Settings.at(scratch)):
         from laplab.train.config import TrainConfig
         from laplab.train.jobs import create_training
         tiny = {"num_episodes_between_training": 2, "num_epochs": 3, "batch_size": 32}

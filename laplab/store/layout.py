@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from laplab.errors import UserError
+from laplab.settings import current_settings
 from laplab.store.atomic import atomic_write_json, atomic_write_text, read_json
 
 MODEL_NAME_PATTERN = re.compile(r"[A-Za-z0-9-]{1,64}")
@@ -258,17 +259,10 @@ def _require_keys(document: Any, keys: tuple[str, ...], file_name: str) -> None:
         raise ValueError(f"{file_name} lacks required key(s) {missing}; present keys: {sorted(document)}")
 
 
-MODELS_ROOT_ENV = "LAPLAB_MODELS"  # set by `--store s3://...` commands to their local working copy
-
-
 def models_root() -> Path:
-    """`$LAPLAB_MODELS` when set (the local working copy of an object store's models, see remote.py),
-    else `$LAPLAB_HOME/models`, default `~/.laplab/models` (not created here)."""
-    override = os.environ.get(MODELS_ROOT_ENV)
-    if override:
-        return Path(override).expanduser()
-    home = os.environ.get("LAPLAB_HOME") or "~/.laplab"
-    return Path(home).expanduser() / "models"
+    """The settings' models folder (laplab/settings.py): `$LAPLAB_HOME/models`, default
+    `~/.laplab/models`, or a `--store` command's local working copy (not created here)."""
+    return current_settings().models_dir
 
 
 def model_folder(name: str, root: str | os.PathLike | None = None) -> ModelFolder:

@@ -19,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
+from laplab.settings import current_settings
 from laplab.store.atomic import atomic_write_with
 from laplab.track import raceline as raceline_module
 from laplab.track import speed_profile as speed_profile_module
 from laplab.track.geometry import Track
 from laplab.track.raceline import RaceLine, RaceLineSettings, compute_raceline_for_track
-from laplab.track.registry import laplab_home, load_track
+from laplab.track.registry import load_track
 from laplab.track.speed_profile import standing_start_lap_time
 from laplab.vehicle.params import DEEPRACER, VehicleParams
 
@@ -36,7 +37,7 @@ _memory: dict[Path, RaceLine] = {}
 
 def cache_folder() -> Path:
     """Folder of cached race lines (``$LAPLAB_HOME/cache``)."""
-    return laplab_home() / "cache"
+    return current_settings().cache_dir
 
 
 @lru_cache(maxsize=1)

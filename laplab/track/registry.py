@@ -10,20 +10,16 @@ from pathlib import Path
 
 import numpy as np
 
+from laplab.settings import current_settings
 from laplab.track.geometry import Track, TrackError, load_route_file, validate_route
 
 BUILTIN_DIR = Path(__file__).resolve().parent / "data"
 DEFAULT_TRACK = "classic_2018"
 
 
-def laplab_home() -> Path:
-    """Root of laplab's user data (``$LAPLAB_HOME``, default ``~/.laplab``)."""
-    return Path(os.environ.get("LAPLAB_HOME", Path.home() / ".laplab")).expanduser()
-
-
 def user_track_dir() -> Path:
-    """Folder of imported and fetched tracks (``$LAPLAB_HOME/tracks``)."""
-    return laplab_home() / "tracks"
+    """Folder of imported and fetched tracks (``$LAPLAB_HOME/tracks``, laplab/settings.py)."""
+    return current_settings().tracks_dir
 
 
 @dataclass(frozen=True)

@@ -9,8 +9,9 @@ from tests.test_package_layers import PACKAGE, imports_of
 
 
 def test_store_imports_nothing_of_laplab_above_it():
-    # the package root (its version) is not above; laplab.errors is the standard library only (any layer)
-    below = ("laplab", "laplab.errors")
+    # the package root (its version) is not above; laplab.errors and laplab.settings are the standard
+    # library only (any layer)
+    below = ("laplab", "laplab.errors", "laplab.settings")
     above = {f: sorted(m for m in mods if m not in below and not m.startswith("laplab.store"))
              for f, mods in imports_of("store").items()}
     assert not {f: m for f, m in above.items() if m}
