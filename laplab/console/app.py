@@ -90,7 +90,7 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
     app.state.store, app.state.service, app.state.secret = store, service, load_secret(home)
     app.state.open_access, app.state.sandbox = open_access, runner.sandbox
     app.state.allow_unsandboxed = bool(allow_unsandboxed)
-    app.state.limits, app.state.login_throttle = limits, LoginThrottle()
+    app.state.limits, app.state.login_throttle = limits, LoginThrottle(store.path)
     app.add_middleware(BodyLimit, json_bytes=max_body_bytes, upload_bytes=max_upload_bytes)
     app.state.cluster = cluster
     app.state.first_token = first_token

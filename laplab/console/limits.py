@@ -6,7 +6,8 @@ attempts throttled per token id, and the longest training a request may ask for.
   it arrives and refused at the limit. JSON routes take ``json_bytes`` (1 MiB by default), the import
   route ``upload_bytes`` (1 GiB).
 - :class:`LoginThrottle`: ``attempts`` failed logins with one token id (the part of a token before its
-  dot) within ``window_s`` block that id for the rest of the window (429 with ``Retry-After``); a
+  dot) within ``window_s`` block that id for the rest of the window (429 with ``Retry-After``), also
+  after a restart of the server (the failures are rows of the console's database); a
   token already verified is not affected (it is answered from memory). This also bounds the argon2
   work a stranger can make the server do per token id.
 - :func:`check_max_time`: a training's ``max_time_s`` over the server's cap (``JobLimits.max_time_s``,
@@ -18,7 +19,6 @@ from __future__ import annotations
 import json
 import threading
 import time
-from collections import deque
 
 MIB = 1 << 20
 UPLOAD_PATHS = ("/api/models/import",)
@@ -94,31 +94,44 @@ class LoginThrottled(Exception):
 
 
 class LoginThrottle:
-    """Failed login attempts per token id (in memory: a server restart forgets them)."""
+    """Failed login attempts per key (a token id; a user name for password logins), kept in a table of
+    the console's SQLite database, so a restart of the server does not forget them (``database`` None:
+    in memory, for tests). Times are wall-clock seconds, which survive the restart."""
 
-    def __init__(self, attempts: int = 5, window_s: float = 60.0):
+    MAX_ROWS = 100_000  # a flood of made-up keys: the oldest half is forgotten
+
+    def __init__(self, database=None, attempts: int = 5, window_s: float = 60.0):
+        import sqlite3
         self.attempts, self.window_s = int(attempts), float(window_s)
-        self._failures: dict[str, deque] = {}
         self._lock = threading.Lock()
+        self._db = sqlite3.connect(str(database) if database is not None else ":memory:", check_same_thread=False,
+                                   timeout=30.0, isolation_level=None)
+        self._db.execute("CREATE TABLE IF NOT EXISTS login_failures (key TEXT NOT NULL, at REAL NOT NULL)")
+        self._db.execute("CREATE INDEX IF NOT EXISTS login_failures_key ON login_failures (key, at)")
 
-    def check(self, token_id: str) -> None:
-        """Raise :class:`LoginThrottled` while ``token_id`` is blocked."""
-        now = time.monotonic()
+    def check(self, key: str) -> None:
+        """Raise :class:`LoginThrottled` while ``key`` is blocked."""
+        now = time.time()
         with self._lock:
-            failures = self._failures.get(token_id)
-            if not failures:
-                return
-            while failures and now - failures[0] > self.window_s:
-                failures.popleft()
-            if len(failures) >= self.attempts:
-                raise LoginThrottled(self.window_s - (now - failures[0]))
+            count, first = self._db.execute(
+                "SELECT COUNT(*), MIN(at) FROM (SELECT at FROM login_failures WHERE key = ? AND at > ? "
+                "ORDER BY at DESC LIMIT ?)", (key, now - self.window_s, self.attempts)).fetchone()
+        if count >= self.attempts:
+            raise LoginThrottled(self.window_s - (now - first))
 
-    def failed(self, token_id: str) -> None:
+    def failed(self, key: str) -> None:
+        now = time.time()
         with self._lock:
-            if len(self._failures) > 100_000:  # a flood of made-up ids: forget the oldest half
-                for key in list(self._failures)[:50_000]:
-                    del self._failures[key]
-            self._failures.setdefault(token_id, deque(maxlen=self.attempts)).append(time.monotonic())
+            self._db.execute("INSERT INTO login_failures (key, at) VALUES (?, ?)", (key, now))
+            self._db.execute("DELETE FROM login_failures WHERE key = ? AND at <= ?", (key, now - self.window_s))
+            (rows,) = self._db.execute("SELECT COUNT(*) FROM login_failures").fetchone()
+            if rows > self.MAX_ROWS:
+                self._db.execute("DELETE FROM login_failures WHERE at <= ?", (now - self.window_s,))
+                self._db.execute("DELETE FROM login_failures WHERE rowid IN (SELECT rowid FROM login_failures "
+                                 "ORDER BY at LIMIT ?)", (rows // 2,))
+
+    def close(self) -> None:
+        self._db.close()
 
 
 def check_max_time(max_time_s: float | None, cap_s: float) -> str | None:
