@@ -92,11 +92,15 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _dispatch(args: argparse.Namespace) -> int:
+    from laplab.commands import outcome
     from laplab.jobs import sandbox, supervisor
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        outcome.write(args.command)
+        return code
     except user_error_types() as exc:
         print(f"laplab {args.command}: error: {exc}", file=sys.stderr)
+        outcome.write(args.command, exc)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -65,4 +65,6 @@ def run_report(args: argparse.Namespace) -> int:
         except ReportDataError as exc:
             raise UserError(f"cannot build the report of {folder.root}: {exc}") from None
     print(index)
+    from laplab.commands.outcome import record
+    record(page=str(index))
     return 0
