@@ -76,8 +76,8 @@ def is_deepracer_source(source: str | os.PathLike) -> bool:
     """Whether ``source`` is one of DeepRacer's layouts rather than a laplab archive (a ``.tar.gz``
     holding ``laplab-export.json``)."""
     text = str(source)
-    if text.startswith("s3://") or text.lower().endswith((".zip", ".pb")) or Path(text).is_dir():
-        return True
+    if text.startswith("s3://") or text.lower().endswith((".zip", ".pb")) or not Path(text).is_file():
+        return True  # (a path that does not exist: its error lists every kind of source)
     if text.lower().endswith((".tar.gz", ".tgz", ".tar")) and Path(text).is_file():
         import tarfile
         try:
@@ -128,8 +128,9 @@ def _checkpoint_names(model_dir: Path) -> list[str]:
 
 
 def choose_checkpoint(model_dir: Path, source: str) -> tuple[str | None, float | None]:
-    """(the checkpoint to import, its avg_eval_metric): deepracer_checkpoints.json's best, else
-    ``.coach_checkpoint``, else TensorFlow's ``checkpoint`` state, else the newest one. None: none."""
+    """(the checkpoint to import, its avg_eval_metric): the one deepracer_checkpoints.json names best,
+    else ``.coach_checkpoint``'s, else TensorFlow's ``checkpoint`` state's, else the newest one
+    (None: there is none). A named checkpoint whose files are missing is an error."""
     names = _checkpoint_names(model_dir)
     if not names:
         return None, None
@@ -151,11 +152,10 @@ def choose_checkpoint(model_dir: Path, source: str) -> tuple[str | None, float |
         match = re.search(r'model_checkpoint_path:\s*"([^"]+)"', state.read_text(encoding="utf-8", errors="replace"))
         if match:
             choices.append((Path(match.group(1)).name, "model/checkpoint", None))
-    for name, where, metric in choices:
+    if choices:  # the first file that names one decides: never a silent fallback to another checkpoint
+        name, where, metric = choices[0]
         if name in names:
             return name, metric
-    if choices:
-        name, where, _ = choices[0]
         raise DeepRacerImportError(f"{source}: {where} names checkpoint {name!r}, but model/ holds no {name}.index "
                                    f"(it has {', '.join(names)}). Copy the whole model/ folder, or fix {where}.",
                                    field=where.split(" ")[0])
@@ -210,10 +210,6 @@ def _config(layout: DeepRacerLayout, source: str):
         metadata = metadata_from_dict(layout.metadata, f"{source}: {layout.metadata_file}")
     except (MetadataError, ActionSpaceError, TypeError) as exc:
         raise DeepRacerImportError(f"{exc} Nothing was imported.", field=layout.metadata_file) from None
-    if metadata.training_algorithm == "sac" and metadata.action_space.kind != "continuous":
-        raise DeepRacerImportError(f"{source}: {layout.metadata_file}: SAC trains continuous action spaces only, "
-                                   "and this one is discrete (DeepRacer's rule too). Nothing was imported.",
-                                   field=layout.metadata_file)
     notes = []
     track = DEFAULT_TRACK
     if layout.track:
@@ -270,7 +266,7 @@ def load_weights(layout: DeepRacerLayout, config, source: str):
             found = {name: array.shape for name, array in constants.items()}
             value = None
         expected = expected_variables(policy, value)
-        problems = mismatches(found, expected)
+        problems = mismatches(found, expected, strict=layout.checkpoint is not None)
         if problems:
             raise DeepRacerImportError(
                 f"{source}: {where} does not hold the network {layout.metadata_file} describes ({_describe(config)}): "

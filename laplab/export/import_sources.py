@@ -82,7 +82,7 @@ def _unpack_zip(path: Path, target: Path, max_bytes: int) -> None:
                 if info.is_dir() or name == ".":
                     continue
                 mode = info.external_attr >> 16
-                if mode and not stat.S_ISREG(mode):
+                if stat.S_IFMT(mode) not in (0, stat.S_IFREG):  # 0: no Unix type recorded
                     raise ImportSourceError(f"{source}: member {info.filename!r} is a link or a special file; a "
                                             "model archive holds regular files only. Nothing was imported.")
                 total += info.file_size

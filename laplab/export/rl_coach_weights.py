@@ -24,11 +24,22 @@ def expected_variables(policy: PolicyLayers, value: PolicyLayers | None) -> dict
     return {name: tuple(array.shape) for name, array in rl_coach_variables(policy, value).items()}
 
 
-def mismatches(found: Mapping[str, tuple[int, ...]], expected: Mapping[str, tuple[int, ...]]) -> list[str]:
+OPTIMIZER_SLOTS = ("/Adam", "/Momentum", "/RMSProp", "beta1_power", "beta2_power")
+
+
+def mismatches(found: Mapping[str, tuple[int, ...]], expected: Mapping[str, tuple[int, ...]],
+               strict: bool = True) -> list[str]:
     """What keeps a checkpoint holding ``found`` (name -> shape) from filling ``expected``: missing
-    variables and wrong shapes, as short phrases (empty: it fits; extra variables are ignored, e.g.
-    optimizer slots or a counter)."""
+    variables, wrong shapes and (``strict``) variables of the same networks that laplab's network has
+    no place for (another sensor, a deeper head), as short phrases; empty: it fits. Optimizer slots
+    and variables outside the networks (a step counter) are ignored."""
     problems = []
+    if strict:
+        scopes = {name.rsplit("/", 1)[0].split("/network_")[0] + "/network_" for name in expected}
+        extra = sorted(name for name in set(found) - set(expected) if name.startswith(tuple(scopes))
+                       and not any(slot in name for slot in OPTIMIZER_SLOTS))
+        if extra:
+            problems.append(f"{len(extra)} variable(s) the network has no place for, e.g. {extra[0]!r}")
     missing = sorted(set(expected) - set(found))
     if missing:
         problems.append(f"{len(missing)} variable(s) missing, e.g. {missing[0]!r}")
