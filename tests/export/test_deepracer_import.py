@@ -147,3 +147,12 @@ def test_a_real_console_checkpoint_has_the_variables_laplab_expects():
         found = {name: entry.shape for name, entry in entries.items()}
         assert mismatches(found, expected_variables(policy, value)) == []
         assert set(found) == set(expected_variables(policy, value))  # nothing more either
+
+
+def test_python_api_import_model(home, tmp_path):
+    from laplab.api import import_model
+    from laplab.errors import UserError
+    assert import_model(home["ppo-deep-cam"], "via-api") == "via-api"
+    assert model_folder("via-api").exists()
+    with pytest.raises(UserError, match="no such file or folder"):
+        import_model(tmp_path / "missing", "never")
