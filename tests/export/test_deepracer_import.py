@@ -128,6 +128,19 @@ def test_bare_model_pb_evaluates_but_refuses_clone_and_resume(home, tmp_path):
         clone_config("from-pb", {}, trust_reward=True)
     with pytest.raises(JobError, match="frozen graph"):
         resume_training("from-pb", trust_reward=True)
+    with tarfile.open(tmp_path / "car-model.tar.gz", "w:gz") as tar:  # the car's archive layout
+        tar.add(car / "model.pb", arcname="agent/model.pb")
+        tar.add(car / "model_metadata.json", arcname="model_metadata.json")
+    assert not import_deepracer_model(tmp_path / "car-model.tar.gz").trainable
+    assert_same_model("ppo-cam-lidar", "car-model", value_network=False)
+
+
+def test_an_imported_model_exports_to_the_console_again(home, tmp_path):
+    from laplab.export.console import export_console
+    import_deepracer_model(home["sac-cam-sector"], "sac-once")
+    again = export_console("sac-once", out=tmp_path / "again").folder
+    import_deepracer_model(again, "sac-twice")
+    assert_same_model("sac-cam-sector", "sac-twice")
 
 
 @pytest.mark.skipif(not REAL.is_dir(), reason="needs ../shared/real-deepracer")
