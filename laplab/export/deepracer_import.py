@@ -219,9 +219,18 @@ def _config(layout: DeepRacerLayout, source: str):
         except TrackError:
             notes.append(f"the training track {layout.track!r} (training_params.yaml) is not one laplab has; the "
                          f"model trains on {DEFAULT_TRACK} unless you clone it with --track")
+    hyperparameters = layout.hyperparameters
+    if hyperparameters is not None:
+        from dataclasses import fields
+
+        from laplab.agents.hyperparameters import Hyperparameters
+        known = {f.name for f in fields(Hyperparameters)}
+        unknown = sorted(set(hyperparameters) - known)
+        if unknown:  # a newer DeepRacer's keys: kept out of the model, said once
+            notes.append(f"ip/hyperparameters.json: {', '.join(unknown)} ignored (laplab does not use them)")
+            hyperparameters = {key: value for key, value in hyperparameters.items() if key in known}
     try:
-        config = TrainConfig(track=track, model_metadata=metadata,
-                             hyperparameters=None if layout.hyperparameters is None else layout.hyperparameters)
+        config = TrainConfig(track=track, model_metadata=metadata, hyperparameters=hyperparameters)
         config.hyper()
     except (HyperparameterError, ConfigError, TypeError) as exc:
         raise DeepRacerImportError(f"{source}: ip/hyperparameters.json: {exc} Nothing was imported.",

@@ -26,6 +26,7 @@ from laplab.errors import UserError
 
 MAX_IMPORT_BYTES = 1 << 30  # DeepRacer on AWS: "must be under 1GB"
 ARCHIVE_SUFFIXES = (".tar.gz", ".tgz", ".tar", ".zip")
+MODEL_PARTS = ("model", "ip", "agent")  # the folders of a prefix that hold the model (besides its root files)
 
 
 class ImportSourceError(UserError, ValueError):
@@ -113,13 +114,17 @@ def _download_prefix(url: str, target: Path, max_bytes: int) -> None:
             raise ImportSourceError(f"{url}: no such prefix: the bucket holds no objects under {base or '/'} (is "
                                     "the prefix spelled as dr-upload-model wrote it, and $AWS_ENDPOINT_URL the right "
                                     "server?). Nothing was imported.")
-        total = sum(size for size, _ in objects.values())
+        wanted = {}
+        for key, (size, _) in objects.items():
+            relative = _check_name(url, key[len(base):])
+            # the model's files only: a training prefix also holds simtraces, metrics and logs
+            if relative not in (".", "") and not key.endswith("/") and (
+                    "/" not in relative or relative.split("/")[0] in MODEL_PARTS):
+                wanted[key] = (relative, size)
+        total = sum(size for _, size in wanted.values())
         if total > max_bytes:
             raise _too_large(url, total, max_bytes)
-        for key in sorted(objects):
-            relative = _check_name(url, key[len(base):])
-            if relative in (".", "") or key.endswith("/"):
-                continue
+        for key, (relative, _) in sorted(wanted.items()):
             store.get_file(key, target / relative)
     except StoreError as exc:
         raise ImportSourceError(str(exc), field="source") from None

@@ -83,8 +83,11 @@ def test_best_checkpoint_is_the_one_deepracer_checkpoints_json_names(home, tmp_p
     for path in list((folder / "model").glob("0_Step-0.ckpt.*")):  # an older checkpoint beside it
         shutil.copy(path, folder / "model" / path.name.replace("0_Step-0", "7_Step-900"))
     (folder / "model/.coach_checkpoint").write_text("7_Step-900.ckpt")
+    hyper = json.loads((folder / "ip/hyperparameters.json").read_text())
+    (folder / "ip/hyperparameters.json").write_text(json.dumps({**hyper, "a_newer_key": 1}))
     imported = import_deepracer_model(folder, "best-of-two")
     assert (imported.source_checkpoint, imported.checkpoint) == ("0_Step-0.ckpt", "0_Step-0.ckpt")
+    assert imported.notes == ("ip/hyperparameters.json: a_newer_key ignored (laplab does not use them)",)
     (folder / "model/deepracer_checkpoints.json").unlink()
     assert import_deepracer_model(folder, "coach-of-two").checkpoint == "7_Step-900.ckpt"
 

@@ -48,10 +48,20 @@ def s3(s3_server, console_exports, monkeypatch):
     return console_exports
 
 
-def test_import_from_a_dr_upload_model_prefix(s3, capsys):
+def test_import_from_a_dr_upload_model_prefix(s3, capsys, monkeypatch):
+    import boto3
+
+    from laplab.store.s3 import ObjectStore
     url = f"s3://{BUCKET}/drfc-{secrets.token_hex(3)}/sac-model"
     assert _upload_console_folder(s3["sac-cam-sector"], url) >= 10
+    simtrace = url.split("/", 3)[3] + "/training-simtrace/0-iteration.csv"  # a training prefix's other files
+    boto3.client("s3").put_object(Bucket=BUCKET, Key=simtrace, Body=b"episode,steps")
+    downloaded = []
+    real_get_file = ObjectStore.get_file
+    monkeypatch.setattr(ObjectStore, "get_file", lambda store, key, path: (downloaded.append(key),
+                                                                            real_get_file(store, key, path)))
     assert main(["import", url]) == 0
+    assert simtrace not in downloaded and any(key.endswith(".ckpt.index") for key in downloaded)
     assert "imported model 'sac-model'" in capsys.readouterr().out
     assert_same_model("sac-cam-sector", "sac-model")
 
