@@ -33,6 +33,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from laplab.errors import UserError
 from laplab.export.checkpoint_bundle import BundleError, read_checkpoint, read_index
 from laplab.export.import_sources import MAX_IMPORT_BYTES, staged_source
@@ -285,6 +287,11 @@ def load_weights(layout: DeepRacerLayout, config, source: str):
                      else {name: constants[name] for name in expected})
     except BundleError as exc:
         raise DeepRacerImportError(f"{source}: {exc} Nothing was imported.", field=exc.field) from None
+    broken = next((name for name in sorted(variables) if not np.isfinite(variables[name]).all()), None)
+    if broken is not None:
+        raise DeepRacerImportError(f"{source}: {where}: variable {broken!r} holds NaN or infinite weights; the "
+                                   "checkpoint is damaged (or its training diverged). Nothing was imported.",
+                                   field=where)
     loaded_policy, loaded_value = layers_from_variables(policy, value, variables)
     load_policy_layers(network, space, loaded_policy, loaded_value)
     return learner

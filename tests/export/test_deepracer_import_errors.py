@@ -89,6 +89,17 @@ def test_a_truncated_data_file_is_named(source):
     refused(source, f"{data}: truncated")
 
 
+def test_nan_weights_are_refused(source):
+    from laplab.export.checkpoint_bundle import read_index
+    _, entries = read_index(source / "model/0_Step-0.ckpt.index")
+    entry = entries["main_level/agent/main/online/network_1/ppo_head_0/policy_fc/bias"]
+    data = source / "model/0_Step-0.ckpt.data-00000-of-00001"
+    raw = bytearray(data.read_bytes())
+    raw[entry.offset:entry.offset + 4] = b"\x00\x00\xc0\x7f"  # float32 NaN
+    data.write_bytes(bytes(raw))
+    refused(source, "'main_level/agent/main/online/network_1/ppo_head_0/policy_fc/bias' holds NaN")
+
+
 def test_a_checkpoint_named_but_absent(source):
     (source / "model/.coach_checkpoint").write_text("9_Step-1.ckpt")
     (source / "model/deepracer_checkpoints.json").unlink()
