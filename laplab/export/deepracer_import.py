@@ -191,7 +191,7 @@ def read_layout(root: Path, source: str) -> DeepRacerLayout:
         try:
             reward = reward_path.read_text(encoding="utf-8")
             compile(reward, str(reward_path), "exec")
-        except (SyntaxError, UnicodeDecodeError, ValueError) as exc:
+        except (SyntaxError, UnicodeDecodeError, ValueError, RecursionError, MemoryError) as exc:
             raise DeepRacerImportError(f"{source}: reward_function.py does not compile: {exc}. Nothing was imported.",
                                        field="reward_function.py") from None
     return DeepRacerLayout(root, _json(metadata_path, source), str(metadata_path.relative_to(root)),

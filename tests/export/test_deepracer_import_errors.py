@@ -89,6 +89,14 @@ def test_a_truncated_data_file_is_named(source):
     refused(source, f"{data}: truncated")
 
 
+def test_a_missing_data_file_and_a_reward_that_does_not_compile(source):
+    (source / "reward_function.py").write_text("def reward_function(params):\n    return (")
+    refused(source, "reward_function.py does not compile")
+    (source / "reward_function.py").write_text("def reward_function(params):\n    return 1.0\n")
+    (source / "model/0_Step-0.ckpt.data-00000-of-00001").unlink()
+    refused(source, "0_Step-0.ckpt.data-00000-of-00001: missing")
+
+
 def test_nan_weights_are_refused(source):
     from laplab.export.checkpoint_bundle import read_index
     _, entries = read_index(source / "model/0_Step-0.ckpt.index")
