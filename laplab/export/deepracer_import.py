@@ -38,6 +38,7 @@ import numpy as np
 from laplab.errors import UserError
 from laplab.export.checkpoint_bundle import BundleError, read_checkpoint, read_index
 from laplab.export.import_sources import MAX_IMPORT_BYTES, staged_source
+from laplab.export.tensorflow_checkpoint import RESCALER
 
 CHECKPOINT_INDEX = re.compile(r"(.+\.ckpt)\.index")
 RL_COACH_NAME = re.compile(r"([0-9]+)_Step-([0-9]+)\.ckpt")
@@ -277,6 +278,8 @@ def load_weights(layout: DeepRacerLayout, config, source: str):
             found = {name: array.shape for name, array in constants.items()}
             value = None
         expected = expected_variables(policy, value)
+        if layout.checkpoint is None:  # the rescaler (1.0, not a weight laplab keeps) may be folded out of a graph
+            expected = {name: shape for name, shape in expected.items() if not name.endswith(RESCALER)}
         problems = mismatches(found, expected, strict=layout.checkpoint is not None)
         if problems:
             raise DeepRacerImportError(

@@ -172,3 +172,15 @@ def test_python_api_import_model(home, tmp_path):
     assert model_folder("via-api").exists()
     with pytest.raises(UserError, match="no such file or folder"):
         import_model(tmp_path / "missing", "never")
+
+
+def test_import_needs_no_tensorflow(home):
+    """The checkpoint is read with numpy: ``laplab import`` runs where TensorFlow cannot be imported."""
+    import os
+    import subprocess
+    import sys
+    code = ("import sys; sys.modules['tensorflow'] = None; from laplab.cli import main; "
+            f"raise SystemExit(main(['import', {str(home['ppo-stereo-continuous'])!r}, '--name', 'no-tf']))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ))
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert_same_model("ppo-stereo-continuous", "no-tf")
