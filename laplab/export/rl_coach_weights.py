@@ -34,18 +34,18 @@ def mismatches(found: Mapping[str, tuple[int, ...]], expected: Mapping[str, tupl
     no place for (another sensor, a deeper head), as short phrases; empty: it fits. Optimizer slots
     and variables outside the networks (a step counter) are ignored."""
     problems = []
-    if strict:
-        scopes = {name.rsplit("/", 1)[0].split("/network_")[0] + "/network_" for name in expected}
-        extra = sorted(name for name in set(found) - set(expected) if name.startswith(tuple(scopes))
-                       and not any(slot in name for slot in OPTIMIZER_SLOTS))
-        if extra:
-            problems.append(f"{len(extra)} variable(s) the network has no place for, e.g. {extra[0]!r}")
     missing = sorted(set(expected) - set(found))
     if missing:
         problems.append(f"{len(missing)} variable(s) missing, e.g. {missing[0]!r}")
     for name in sorted(set(expected) & set(found)):
         if tuple(found[name]) != tuple(expected[name]):
             problems.append(f"{name!r} has shape {list(found[name])}, expected {list(expected[name])}")
+    if strict:
+        scopes = {name.rsplit("/", 1)[0].split("/network_")[0] + "/network_" for name in expected}
+        extra = sorted(name for name in set(found) - set(expected) if name.startswith(tuple(scopes))
+                       and not any(slot in name for slot in OPTIMIZER_SLOTS))
+        if extra:
+            problems.append(f"{len(extra)} variable(s) the network has no place for, e.g. {extra[0]!r}")
     return problems
 
 
