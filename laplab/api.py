@@ -24,7 +24,7 @@ from typing import Any
 
 from laplab.errors import UserError
 
-__all__ = ["ModelFiles", "TrainingJob", "evaluate", "export_for_car", "write_model_files"]
+__all__ = ["ModelFiles", "TrainingJob", "evaluate", "export_for_car", "import_model", "write_model_files"]
 
 RUNNING, COMPLETED, FAILED, STOPPED = "InProgress", "Completed", "Failed", "Stopped"
 
@@ -230,3 +230,20 @@ def export_for_car(name: str, out: str | os.PathLike, store: str | None = None, 
             raise UserError(f"exporting {name!r} for the car wrote no .tar.gz into {out}")
         return archives[-1]
     return out
+
+
+def import_model(source: str | os.PathLike, name: str | None = None) -> str:
+    """Add a model as ``laplab import`` does: a `laplab export` archive, or a DeepRacer model (a folder,
+    ``.tar.gz`` or ``.zip`` of the console's / DeepRacer on AWS's layout, an ``s3://BUCKET/PREFIX`` that
+    deepracer-for-cloud uploaded, a car's ``model.pb`` with its model_metadata.json beside it).
+    Returns the new model's name; nothing is added when it fails (:class:`UserError`). The model's
+    reward function is not trusted: training it asks for ``--trust-reward`` once (docs/import.md)."""
+    text = str(source)
+    args = ["import", text if text.startswith("s3://") else str(Path(text).resolve())]
+    if name:
+        args += ["--name", name]
+    out = _run(args, f"importing {text}")
+    for line in out.splitlines():
+        if line.startswith("imported model '"):
+            return line[len("imported model '"):].split("'", 1)[0]
+    raise UserError(f"importing {text}: laplab import reported no model name ({out.strip()[:200]})")

@@ -39,11 +39,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     export.set_defaults(func=export_command)
 
     imp = subparsers.add_parser(
-        "import", help="restore a model from a `laplab export` archive",
-        description="Check a model archive (member names, checksums, metadata, hyperparameters, laplab.json, "
-                    "and that the checkpoint loads) and add it to your models, atomically.")
-    imp.add_argument("file", type=Path, metavar="FILE.tar.gz")
-    imp.add_argument("--name", help="name of the new model (default: the exported model's name)")
+        "import", help="add a model: a `laplab export` archive, or a DeepRacer model (folder, tar.gz, zip, "
+                       "s3:// prefix, model.pb)",
+        description="Add a model to your models, atomically, after checking it. SOURCE is a `laplab export` "
+                    "archive, or a DeepRacer model: the folder the DeepRacer console, DeepRacer on AWS or "
+                    "`laplab export --format console` writes (model_metadata.json, reward_function.py, "
+                    "ip/hyperparameters.json, model/ with rl_coach's TensorFlow checkpoint), as a folder, .tar.gz "
+                    "or .zip; a deepracer-for-cloud prefix s3://BUCKET/PREFIX (endpoint: $AWS_ENDPOINT_URL); or a "
+                    "car's model.pb with its model_metadata.json beside it (evaluates and races; cannot be "
+                    "trained further). The reward function that comes with a model is not trusted until you say "
+                    "so (--trust-reward). See docs/import.md.")
+    imp.add_argument("file", metavar="SOURCE", help="archive, model folder, .zip, model.pb or s3://BUCKET/PREFIX")
+    imp.add_argument("--name", help="name of the new model (default: the exported model's name, or the folder's / "
+                                    "file's / prefix's last part)")
     imp.set_defaults(func=import_command)
 
 
@@ -198,15 +206,36 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def import_command(args: argparse.Namespace) -> int:
+    from laplab.export.deepracer_import import is_deepracer_source
+    if is_deepracer_source(args.file):
+        return import_deepracer(args)
     from laplab.store.archive import ArchiveError
     from laplab.train.archive import import_model_archive
     try:
-        imported = import_model_archive(args.file, args.name)
+        imported = import_model_archive(Path(args.file), args.name)
     except ArchiveError as exc:
         raise UserError(str(exc)) from None
     print(f"imported model {imported.name!r} (checkpoint {imported.checkpoint}) into {imported.folder.root}")
-    print(f"note: the archive holds a reward function ({imported.folder.reward_function}); it is Python code "
-          f"and will run with your permissions if you train this model (`laplab train --resume {imported.name}`, "
-          f"`laplab clone {imported.name} NEW`). Read it first: those commands ask for --trust-reward once, "
+    _reward_note(imported.name, imported.folder.reward_function)
+    return 0
+
+
+def _reward_note(name: str, reward_function: Path) -> None:
+    print(f"note: the model comes with a reward function ({reward_function}); it is Python code "
+          f"and will run with your permissions if you train this model (`laplab train --resume {name}`, "
+          f"`laplab clone {name} NEW`). Read it first: those commands ask for --trust-reward once, "
           f"or clone with your own --reward FILE. Evaluating and exporting the model run no code from it.")
+
+
+def import_deepracer(args: argparse.Namespace) -> int:
+    """A DeepRacer model (laplab.export.deepracer_import): rl_coach checkpoint or model.pb."""
+    from laplab.export.deepracer_import import import_deepracer_model
+    imported = import_deepracer_model(args.file, args.name)
+    kind = "rl_coach checkpoint" if imported.trainable else "frozen graph"
+    print(f"imported model {imported.name!r} from {args.file} ({kind} {imported.source_checkpoint}, now laplab's "
+          f"checkpoint {imported.checkpoint}) into {imported.folder.root}")
+    for note in imported.notes:
+        print(f"note: {note}")
+    if imported.trainable:
+        _reward_note(imported.name, imported.folder.reward_function)
     return 0

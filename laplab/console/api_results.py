@@ -166,7 +166,8 @@ async def import_model(request: Request, file: UploadFile = File(...), name: str
                        user: User = Depends(current_user)) -> dict:
     service = _service(request)
     try:
-        imported = await run_in_threadpool(exports.import_archive, file.file, name or _stem(file.filename), service, user)
+        imported = await run_in_threadpool(exports.import_archive, file.file, name or _stem(file.filename), service, user,
+                                            file.filename)
     except exports.ExportError as exc:
         raise bad_request(str(exc), "file") from None
     service.models_changed()
@@ -179,7 +180,7 @@ def _stem(filename: str | None) -> str | None:
     if not filename:
         return None
     stem = filename.rsplit("/", 1)[-1]
-    for suffix in (".tar.gz", ".tgz", ".tar"):
+    for suffix in (".tar.gz", ".tgz", ".tar", ".zip"):
         stem = stem.removesuffix(suffix)
     return stem or None
 

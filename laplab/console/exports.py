@@ -55,12 +55,13 @@ def export(name: str, fmt: str) -> tuple[Path, Path]:
         raise
 
 
-def import_archive(stream: BinaryIO, name: str | None, service, user) -> str:
-    """Import an uploaded archive as ``name`` (default: the exported name) owned by ``user``."""
+def import_archive(stream: BinaryIO, name: str | None, service, user, filename: str | None = None) -> str:
+    """Import an uploaded archive as ``name`` (default: the exported name) owned by ``user``: a
+    ``laplab export`` archive or a DeepRacer model folder as .tar.gz or .zip (``filename`` says which)."""
     from laplab.store.layout import ModelNameError, validate_model_name
     folder = Path(tempfile.mkdtemp(prefix="laplab-import-"))
     try:
-        path = folder / "upload.tar.gz"
+        path = folder / ("upload.zip" if (filename or "").lower().endswith(".zip") else "upload.tar.gz")
         with open(path, "wb") as out:
             copied = 0
             while chunk := stream.read(1 << 20):

@@ -187,3 +187,59 @@ def reference_output(network: Any, observations: Any, raw: bool = True) -> np.nd
             return distribution.probs.numpy()
         mean = distribution.mean
         return (mean if raw else mean.clamp(-1.0, 1.0)).numpy()
+
+
+def _set_dense(sequential: Any, layers: Sequence[Dense]) -> None:
+    """Copy ``layers`` into the Linear modules of ``sequential`` (in order; the inverse of _dense_layers)."""
+    import torch
+    from torch import nn
+
+    linears = [module for module in sequential if isinstance(module, nn.Linear)]
+    if len(linears) != len(layers):
+        raise ValueError(f"{len(layers)} dense layers for a stack of {len(linears)}")
+    for linear, layer in zip(linears, layers):
+        linear.weight.copy_(torch.from_numpy(np.ascontiguousarray(layer.kernel.T)))
+        linear.bias.copy_(torch.from_numpy(layer.bias))
+
+
+def _set_trunk(trunk: Any, layers: PolicyLayers, observation_space: Any) -> None:
+    import gymnasium as gym
+    import torch
+    from torch import nn
+
+    single = not isinstance(observation_space, gym.spaces.Dict)
+    for branch in layers.branches:
+        embedder = trunk.sensors[trunk.sensor_names[0] if single else branch.sensor]
+        if branch.is_camera:
+            convs = [module for module in embedder.convolutions if isinstance(module, nn.Conv2d)]
+            for module, conv in zip(convs, branch.convs, strict=True):
+                module.weight.copy_(torch.from_numpy(np.ascontiguousarray(conv.kernel.transpose(3, 2, 0, 1))))
+                module.bias.copy_(torch.from_numpy(conv.bias))
+        _set_dense(embedder.dense, branch.dense)
+    _set_dense(trunk.middleware, layers.middleware)
+
+
+def load_policy_layers(network: Any, observation_space: Any, policy: PolicyLayers,
+                       value: PolicyLayers | None = None) -> None:
+    """Write ``policy`` (and PPO's ``value``) into a laplab PPO ``ActorCritic`` or SAC
+    ``SquashedGaussianActor`` built for ``observation_space``: the inverse of :func:`policy_layers`
+    / :func:`value_layers` (layers must have the network's shapes: take them from those)."""
+    import torch
+
+    from laplab.agents.networks import ActorCritic
+
+    with torch.no_grad():
+        if isinstance(network, ActorCritic):
+            _set_trunk(network.policy_trunk, policy, observation_space)
+            _set_dense([network.policy_head], [policy.head])
+            if network.log_std is not None and policy.log_std is not None:
+                network.log_std.copy_(torch.from_numpy(policy.log_std.reshape(-1)))
+            if value is not None:
+                _set_trunk(network.policy_trunk if network.value_trunk is None else network.value_trunk, value,
+                           observation_space)
+                _set_dense([network.value_head], [value.head])
+        else:
+            _set_trunk(network.trunk, policy, observation_space)
+            _set_dense([network.mean], [policy.head])
+            if policy.log_std_head is not None:
+                _set_dense([network.log_std], [policy.log_std_head])

@@ -96,6 +96,21 @@ def check_reward_trusted(folder: ModelFolder, trust: bool, command: str) -> None
                    f"recorded), or give your own with --reward FILE (laplab clone).")
 
 
+def check_trainable(folder: ModelFolder, command: str) -> None:
+    """Refuse to train a model imported from a frozen graph (a car's model.pb): it has a policy but
+    no value network or optimizer state to continue from."""
+    path = folder.root / IMPORT_RECORD
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return
+    if isinstance(record, dict) and record.get("trainable") is False:
+        raise JobError(f"model {folder.name!r} was imported from a frozen graph ({record.get('source_checkpoint')}, "
+                       f"from {record.get('source')}): it holds the policy network only, without the value network "
+                       f"and training state, so `{command}` cannot continue its training. Evaluate, race or export "
+                       "it; to train, import the model's folder with its rl_coach checkpoint (model/*.ckpt.*).")
+
+
 def validate_model_folder(folder: ModelFolder, checkpoint: str, source: str) -> None:
     """Check that ``folder`` is a usable laplab model whose ``checkpoint`` loads into its network.
     Errors name ``source`` and the file at fault."""

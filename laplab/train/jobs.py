@@ -20,7 +20,7 @@ from laplab.train.model_files import check_model_files
 from laplab.train.errors import JobError
 from laplab.track.geometry import Track
 from laplab.track.registry import load_track
-from laplab.train.archive import check_reward_trusted
+from laplab.train.archive import check_reward_trusted, check_trainable
 from laplab.train.checkpoint_read import read_checkpoint, read_resume_state
 from laplab.train.recorder import ModelFolderRecorder, RobomakerLogRecorder
 from laplab.train.trainer import Trainer, load_weights_only
@@ -152,6 +152,7 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
         raise JobError(f"no model named {name!r} to resume (looked in {folder.root}).")
     lock = take_lock(folder)
     try:
+        check_trainable(folder, f"laplab train --resume {name}")
         check_reward_trusted(folder, trust_reward, f"laplab train --resume {name}")
         config = check_model_files(folder, what="resume")
         if max_time_s is not None:
@@ -196,6 +197,7 @@ def clone_config(source: str, overrides: dict, trust_reward: bool = False) -> tu
     folder = model_folder(source)
     if not folder.exists():
         raise JobError(f"no model named {source!r} to clone (looked in {folder.root}).")
+    check_trainable(folder, f"laplab clone {source} NEW")
     base = check_model_files(folder, what="clone")
     if overrides.get("reward_path") is None:
         check_reward_trusted(folder, trust_reward, f"laplab clone {source} NEW")

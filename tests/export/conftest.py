@@ -52,3 +52,23 @@ def built_case(tmp_path_factory):
             cache[case] = BuiltCase(model, space, layers, path, observations, reference_output(model, observations))
         return cache[case]
     return get
+
+
+@pytest.fixture(scope="session")
+def console_exports(tmp_path_factory):
+    """``{name: folder}``: each model of :data:`deepracer_models.MODELS`, made in a $LAPLAB_HOME of its
+    own and exported with ``laplab export --format console`` (TensorFlow needed); the environment is
+    restored afterwards, so each test module imports into its own home. ``"home"``: that home."""
+    pytest.importorskip("tensorflow", reason="the console export needs tensorflow-cpu")
+    from deepracer_models import MODELS, make_model
+    from laplab.export.console import export_console
+
+    home = tmp_path_factory.mktemp("exported-home")
+    out = tmp_path_factory.mktemp("console-exports")
+    folders = {"home": home}
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("LAPLAB_HOME", str(home))
+        for name, meta in MODELS.items():
+            make_model(name, **meta)
+            folders[name] = export_console(name, out=out / name).folder
+    return folders
