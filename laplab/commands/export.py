@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from laplab.errors import UserError
+from laplab.commands.outcome import record  # what the console reads (the imported model's name)
 
 PARITY_TOLERANCE = 1e-4  # max |ONNX - torch| accepted by the export's self-check
 
@@ -217,6 +218,7 @@ def import_command(args: argparse.Namespace) -> int:
         raise UserError(str(exc)) from None
     print(f"imported model {imported.name!r} (checkpoint {imported.checkpoint}) into {imported.folder.root}")
     _reward_note(imported.name, imported.folder.reward_function)
+    record(model=imported.name, checkpoint=imported.checkpoint, trainable=True)
     return 0
 
 
@@ -238,4 +240,5 @@ def import_deepracer(args: argparse.Namespace) -> int:
         print(f"note: {note}")
     if imported.trainable:
         _reward_note(imported.name, imported.folder.reward_function)
+    record(model=imported.name, checkpoint=imported.checkpoint, trainable=imported.trainable, notes=list(imported.notes))
     return 0

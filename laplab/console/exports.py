@@ -3,6 +3,7 @@ with a clean environment and limits (torch stays out of the server; archives are
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -21,17 +22,29 @@ class ExportError(ValueError):
     """An export or import that laplab refused, with laplab's message."""
 
 
-def _laplab(args: list[str], cwd: Path) -> str:
-    env = clean_environment(current_settings().to_env(), sandboxed=False)
-    try:
-        done = subprocess.run([sys.executable, "-m", "laplab.cli", *args], capture_output=True, env=env, cwd=cwd,
-                              timeout=EXPORT_TIMEOUT_S, preexec_fn=limits_preexec(JobLimits.console(cpu_seconds=600)))
-    except subprocess.TimeoutExpired:
-        raise ExportError(f"`laplab {args[0]}` did not finish within {EXPORT_TIMEOUT_S:g} s") from None
-    if done.returncode != 0:
-        message = done.stderr.decode(errors="replace").strip().splitlines()
-        raise ExportError(message[-1].split(": error: ", 1)[-1] if message else f"`laplab {args[0]}` failed")
-    return done.stdout.decode(errors="replace")
+def _laplab(args: list[str], cwd: Path) -> dict:
+    """Run ``laplab ARGS`` in a limited child process and return its outcome (the JSON it writes to
+    ``$LAPLAB_RESULT_FILE``: :mod:`laplab.commands.outcome`); its refusal as an :class:`ExportError`."""
+    from laplab.commands.outcome import RESULT_FILE_ENV
+    with tempfile.TemporaryDirectory(prefix="laplab-outcome-") as scratch:
+        result_file = Path(scratch) / "outcome.json"
+        env = clean_environment({**current_settings().to_env(), RESULT_FILE_ENV: str(result_file)}, sandboxed=False)
+        try:
+            done = subprocess.run([sys.executable, "-m", "laplab.cli", *args], capture_output=True, env=env,
+                                  cwd=cwd, timeout=EXPORT_TIMEOUT_S,
+                                  preexec_fn=limits_preexec(JobLimits.console(cpu_seconds=600)))
+        except subprocess.TimeoutExpired:
+            raise ExportError(f"`laplab {args[0]}` did not finish within {EXPORT_TIMEOUT_S:g} s") from None
+        try:
+            outcome = json.loads(result_file.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            outcome = None
+    if outcome is None:
+        raise ExportError(f"`laplab {args[0]}` ended without an answer (exit status {done.returncode}: it ran out "
+                          "of time or memory, or crashed)")
+    if not outcome.get("ok") or done.returncode != 0:
+        raise ExportError(outcome.get("error") or f"`laplab {args[0]}` failed (exit status {done.returncode})")
+    return outcome
 
 
 def export(name: str, fmt: str) -> tuple[Path, Path]:
@@ -81,8 +94,7 @@ def import_archive(stream: BinaryIO, name: str | None, service, user, filename: 
                 raise ExportError(f"you already have a model named {shown!r}; import it under another name")
         elif not user.is_admin:
             raise ExportError("name the model to import (model names are per user)")
-        output = _laplab(["import", str(path)] + (["--name", name] if name else []), folder)
-        imported = output.split("imported model ", 1)[1].split("'")[1]
+        imported = _laplab(["import", str(path)] + (["--name", name] if name else []), folder)["model"]
         service.store.claim_model(imported, user.id, "imported")
         return imported
     finally:

@@ -144,10 +144,9 @@ def report_page(name: str, request: Request, user: User = Depends(current_user))
     from laplab.console.exports import ExportError, _laplab
     from laplab.jobs.runner import models_dir
     try:
-        output = _laplab(["report", name], models_dir())
+        page = Path(_laplab(["report", name], models_dir())["page"])
     except ExportError as exc:
         raise HTTPException(400, {"message": str(exc)}) from None
-    page = Path(output.strip().splitlines()[-1])
     if not page.is_file():
         raise HTTPException(500, "laplab report wrote no page")
     from laplab.console.safety import banner_html
