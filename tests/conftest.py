@@ -5,6 +5,7 @@
 - ``circle_route`` / ``stadium_route``: builders of synthetic DeepRacer routes (N, 6) with known
   geometry, and ``circle_track`` / ``stadium_track``: ready-made :class:`Track` objects.
 - ``pure_pursuit``: a batched steering controller that follows each car's centre line.
+- ``s3_server``: a local S3 (moto) on 127.0.0.1, per test module.
 """
 
 from __future__ import annotations
@@ -132,3 +133,14 @@ def pure_pursuit_steering(sim, lookahead: float = 0.6) -> np.ndarray:
 def pure_pursuit():
     """The controller :func:`pure_pursuit_steering` ``(sim, lookahead=0.6) -> (N,) rad``."""
     return pure_pursuit_steering
+
+
+@pytest.fixture(scope="module")
+def s3_server():
+    """``http://127.0.0.1:PORT`` of a moto S3 server running in this process (stopped after the module)."""
+    moto_server = pytest.importorskip("moto.server")
+    server = moto_server.ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    server.start()
+    host, port = server.get_host_and_port()
+    yield f"http://{host}:{port}"
+    server.stop()

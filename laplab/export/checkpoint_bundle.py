@@ -105,15 +105,19 @@ def _block(data: bytes, handle: bytes, where: str) -> list[tuple[bytes, bytes]]:
     return entries
 
 
+def tensor_shape(message: bytes, where: str) -> list[int]:
+    """The sizes of a TensorShapeProto (its ``dim`` fields' ``size``), outermost first."""
+    return [next((v for n, _, v in _fields(dim, where) if n == 1), 0)
+            for number, _, dim in _fields(message, where) if number == 2]
+
+
 def _entry(name: str, value: bytes, where: str) -> BundleEntry:
     dtype, shape, shard, offset, size, slices = 0, [], 0, 0, 0, False
     for number, _, field in _fields(value, where):
         if number == 1:
             dtype = field
         elif number == 2:
-            for dim_number, _, dim in _fields(field, where):
-                if dim_number == 2:
-                    shape.append(next((v for n, _, v in _fields(dim, where) if n == 1), 0))
+            shape = tensor_shape(field, where)
         elif number == 3:
             shard = field
         elif number == 4:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from laplab.export.checkpoint_bundle import DTYPES, BundleError, _fields
+from laplab.export.checkpoint_bundle import DTYPES, BundleError, _fields, tensor_shape
 
 
 def _tensor(data: bytes, where: str) -> np.ndarray | None:
@@ -23,9 +23,7 @@ def _tensor(data: bytes, where: str) -> np.ndarray | None:
         if number == 1:
             dtype = value
         elif number == 2:
-            for dim_number, _, dim in _fields(value, where):
-                if dim_number == 2:
-                    shape.append(next((v for n, _, v in _fields(dim, where) if n == 1), 0))
+            shape = tensor_shape(value, where)
         elif number == 4:
             content = value
         elif number == 5 and wire == 2:

@@ -22,16 +22,6 @@ from test_deepracer_import import assert_same_model  # noqa: E402
 BUCKET = "laplab-import-test"
 
 
-@pytest.fixture(scope="module")
-def s3_server():
-    moto_server = pytest.importorskip("moto.server")
-    server = moto_server.ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
-    server.start()
-    host, port = server.get_host_and_port()
-    yield f"http://{host}:{port}"
-    server.stop()
-
-
 @pytest.fixture
 def s3(s3_server, console_exports, monkeypatch):
     """Endpoint and credentials in the environment; $LAPLAB_HOME the exported models' home."""

@@ -16,17 +16,6 @@ BUCKET = "laplab-test"
 
 
 @pytest.fixture(scope="module")
-def s3_server():
-    """``http://127.0.0.1:PORT`` of a moto server running in this process (stopped after the module)."""
-    moto_server = pytest.importorskip("moto.server")
-    server = moto_server.ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
-    server.start()
-    host, port = server.get_host_and_port()
-    yield f"http://{host}:{port}"
-    server.stop()
-
-
-@pytest.fixture(scope="module")
 def bucket(s3_server):
     import boto3
     client = boto3.client("s3", endpoint_url=s3_server, region_name="us-east-1",
