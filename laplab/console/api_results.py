@@ -45,6 +45,8 @@ def start_evaluation(name: str, body: Evaluate, request: Request, user: User = D
         raise HTTPException(409, f"{name!r} is training: evaluate it when its training has ended")
     if not (models_dir() / name / "model" / "deepracer_checkpoints.json").exists():
         raise HTTPException(409, f"{name!r} has no checkpoint to evaluate yet")
+    from laplab.console.roles import check_quota
+    check_quota(request, user, "evaluate", body.model_dump())
     job = service.submit("evaluate", name, service.owners()[name], body.model_dump())
     return {"id": job.id, "status": job.status}
 
