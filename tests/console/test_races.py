@@ -173,23 +173,26 @@ def test_private_race_submissions_board_and_refusals(console, people, make_model
     assert console.admin.delete(f"/api/races/{clone.json()['id']}").status_code == 200
 
 
-def test_quota_reserves_and_returns_minutes(console, people, make_model):
-    admin, rita = console.admin, people["rita"]
-    usage = rita.get("/api/usage").json()
-    assert usage["minutes_queued"] == 0 and usage["models"] >= 1 and usage["storage_bytes"] > 0
-    everyone = admin.get("/api/usage").json()
-    assert {"rita", "ravi", "fay"} <= {u["user"] for u in everyone["users"]}
-    assert rita.get("/api/quotas").status_code == 403
-    used = usage["minutes_used"]
-    assert admin.put("/api/users/rita/quota", json={"minutes": used + 1.0, "models": 1}).status_code == 200
-    race = people["fay"].post("/api/races", json={"name": "Open race", "track": "oval", "laps": 1}).json()
-    refused = rita.post(f"/api/races/{race['id']}/submissions", json={"model": "fast"})
-    assert refused.status_code == 403 and "quota" in refused.json()["detail"]["message"]
-    assert rita.get(f"/api/races/{race['id']}/submissions").json() == []  # nothing half-done
-    model = rita.post("/api/models", json={"name": "another", "track": "oval", "max_time_s": 10})
-    assert model.status_code == 403 and "models" in model.json()["detail"]["message"]
-    assert rita.get("/api/models/another").status_code == 404
-    admin.put("/api/users/rita/quota", json={"minutes": None, "models": None})
+def test_quota_refuses_with_nothing_half_done(console, people, make_model):
+    admin = console.admin
+    sign_up(console, admin.post("/api/invites", json={"role": "racer"}).json()["code"], "quinn")
+    quinn = token_client(console, "quinn")
+    racer_model(console, "quinn", "fast", make_model)
+    usage = quinn.get("/api/usage").json()
+    assert usage["minutes_queued"] == 0 and usage["models"] == 1 and usage["storage_bytes"] > 0
+    assert "quinn" in {u["user"] for u in admin.get("/api/usage").json()["users"]}
+    assert quinn.get("/api/quotas").status_code == 403
+    assert quinn.put("/api/users/quinn/quota", json={"minutes": 1000}).status_code == 403
+    assert admin.put("/api/users/quinn/quota", json={"minutes": 1.0, "models": 1}).status_code == 200
+    race = people["fay"].post("/api/races", json={"name": "Open race", "track": "oval", "laps": 1,
+                                                     "ranking": "best_lap"}).json()
+    refused = quinn.post(f"/api/races/{race['id']}/submissions", json={"model": "fast"})
+    assert refused.status_code == 403 and "over your quota of 1 minutes" in refused.json()["detail"]["message"]
+    assert quinn.get(f"/api/races/{race['id']}/submissions").json() == []  # nothing half-done
+    model = quinn.post("/api/models", json={"name": "another", "track": "oval", "max_time_s": 10})
+    assert model.status_code == 403 and "allows 1 models" in model.json()["detail"]["message"]
+    assert quinn.get("/api/models/another").status_code == 404
+    assert admin.put("/api/quotas", json={"global_minutes": -1}).status_code == 400
 
 
 def test_pages_check_who_asks(console, people):
