@@ -190,9 +190,9 @@ def submit(race_id: int, body: Submit, request: Request, user: User = Depends(cu
     if race_type != race.settings.race_type:
         raise HTTPException(400, {"message": f"model: {body.model!r} was trained for {race_type}; this race is "
                                              f"{race.settings.race_type}", "field": "model"})
-    params = {**race.settings.evaluation_params(), "race": race.id}
-    check_quota(request, user, "evaluate", params)
-    evaluation = {k: v for k, v in params.items() if k != "race"}
+    from laplab.races.catalogue import track_key
+    evaluation = race.settings.evaluation_params(track_key(race.settings.track, race.settings.direction))
+    check_quota(request, user, "evaluate", evaluation)
     try:
         sub = races(request).add_submission(race, user, key,
                                             lambda: service.submit("evaluate", key, user.id, evaluation))

@@ -235,6 +235,18 @@ def tracks(request: Request, user: User = Depends(current_user)) -> list[dict]:
     return track_list()
 
 
+@router.get("/tracks/catalogue")
+def track_catalogue(user: User = Depends(current_user)) -> list[dict]:
+    """DeepRacer's 62 official tracks by display name, each with its simapp route and whether it is
+    here (``laplab tracks fetch --names "DISPLAY NAME"`` fetches one)."""
+    from laplab.races.catalogue import catalogue
+    from laplab.track.registry import available_tracks
+    here = {t.name for t in available_tracks()}
+    return [{"id": t.id, "name": t.name, "route": t.route, "variants": list(t.variants), "available": t.route in here,
+             "directions": ["counterclockwise", "clockwise"], "fetch": f'laplab tracks fetch --names "{t.name}"'}
+            for t in catalogue()]
+
+
 @router.get("/tracks/{name}/outline")
 def track_outline(name: str, user: User = Depends(current_user)) -> dict:
     from laplab.console.tracks import outline

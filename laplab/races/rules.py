@@ -113,14 +113,10 @@ class RaceSettings:
         except TypeError as exc:
             raise RaceError(f"race: {exc}") from None
 
-    @property
-    def track_key(self) -> str:
-        """The evaluation's track argument (``name@reversed`` for clockwise)."""
-        return self.track + ("@reversed" if self.direction == "clockwise" else "")
-
-    def evaluation_params(self) -> dict:
-        """The console's evaluate job under this race's rules: consecutive laps, with a video."""
-        params = {"track": self.track_key, "trials": self.laps, "off_track_penalty": float(self.off_track_penalty),
+    def evaluation_params(self, track_key: str) -> dict:
+        """The console's evaluate job under this race's rules: consecutive laps, with a video;
+        ``track_key``: the track driven in the race's direction (:func:`laplab.races.catalogue.track_key`)."""
+        params = {"track": track_key, "trials": self.laps, "off_track_penalty": float(self.off_track_penalty),
                   "crash_penalty": float(self.collision_penalty), "resets": self.max_resets, "continuous": True,
                   "video": True, "seed": 0, "checkpoint": "best", "max_trial_time": 180.0}
         if self.physics is not None:

@@ -134,7 +134,9 @@ def test_private_race_submissions_board_and_refusals(console, people, make_model
     assert over.status_code == 409 and over.json()["detail"]["field"] == "max_submissions"
     assert len(console.app.state.store.jobs()) == jobs_before + 3  # the refused one queued nothing
     job = console.app.state.store.job(first.json()["job"])
-    assert job.kind == "evaluate" and job.params["track"] == "oval" and job.params["trials"] == 2
+    from laplab.races.catalogue import track_key
+    assert job.kind == "evaluate" and job.params["track"] == track_key("oval", "counterclockwise")
+    assert job.params["trials"] == 2 and job.params["physics"] == "deepracer-v5"
     assert job.params["continuous"] is True and job.params["video"] is True
 
     subs = wait_done(fay, rid, 3)

@@ -13,7 +13,7 @@ def lap(t):
 
 def test_settings_defaults_and_evaluation_params():
     race = RaceSettings(name="Class race", track="oval", direction="clockwise", laps=3, max_resets=2)
-    params = race.evaluation_params()
+    params = race.evaluation_params("oval@reversed")
     assert params["track"] == "oval@reversed" and params["trials"] == 3 and params["continuous"] is True
     assert params["resets"] == 2 and params["video"] is True and params["physics"] == race.physics
     assert RaceSettings.from_dict(race.to_dict()) == race
