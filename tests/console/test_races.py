@@ -206,3 +206,7 @@ def test_pages_check_who_asks(console, people):
     assert fay.get("/races/new").status_code == 200 and fay.get("/invites").status_code == 200
     assert console.client(None).get("/join/not-a-code").status_code == 410
     assert rita.get("/api/races/999999/leaderboard").status_code == 404
+    paths = rita.get("/openapi.json").json()["paths"]
+    for path in ("/api/races", "/api/races/{race_id}/submissions", "/api/races/{race_id}/leaderboard", "/api/invites",
+                 "/api/users/{name}/role", "/api/usage", "/api/quotas", "/api/signup", "/api/tracks/catalogue"):
+        assert path in paths, path

@@ -18,7 +18,7 @@ const Races = (() => {
   const RANKING = {average_consecutive: "average of N consecutive laps", best_lap: "best lap", total_time: "total time"};
   const say = (node, text, bad = true) => { node.textContent = text; node.className = bad ? "field-error" : "ok"; };
   const avatar = (r, size = 28) => el("span", {class: "avatar", style: `background:${r.colour};width:${size}px;height:${size}px;font-size:${size * 0.42}px`, title: r.alias}, r.initials);
-  const flag = cc => cc && cc.length === 2 ? String.fromCodePoint(...[...cc.toUpperCase()].map(c => 0x1F1A5 + c.charCodeAt(0))) : "";
+  const flag = cc => cc ? el("span", {class: "country", title: cc}, cc) : "";
   const lapsText = laps => laps.map(l => l.time === null ? `✗ ${l.status}` : l.time.toFixed(2)).join(" · ");
 
   // ---- list ------------------------------------------------------------------------------------
@@ -97,6 +97,8 @@ const Races = (() => {
       ["Access", race.private ? "private (join code)" : "public"], ["Owner", race.owner_name],
     ].map(([k, v]) => el("div", {}, el("span", {}, k), String(v))));
     $("#race-description").textContent = race.description || "";
+    const head = $("#board-head"), last = head.lastElementChild;
+    for (let i = 1; i <= race.laps; i++) head.insertBefore(el("th", {class: "num"}, `Lap ${i}`), last);
     $("#race-state").replaceChildren(el("span", {class: `status ${race.open_now ? "running" : "done"}`}, race.open_now ? "open for submissions" : race.closed ? "closed" : "not open now"));
     if (race.code) { $("#code-box").hidden = false; $("#race-code").textContent = race.code; }
     const models = await api("GET", "/api/models");
@@ -141,7 +143,7 @@ const Races = (() => {
         $("#board-title").textContent = race.name;
         $("#board-sub").textContent = `${race.track} · ${race.direction} · ${race.ranking === "average_consecutive" ? `average of ${race.consecutive_laps} consecutive laps` : RANKING[race.ranking]} · ${race.laps} laps`;
         $("#board-rows").replaceChildren(...board.entries.map(r => el("div", {class: `board-row${r.rank <= 3 ? " top top" + r.rank : ""}`, "data-rank": r.rank},
-          el("div", {class: "rank"}, r.rank), avatar(r, 54), el("div", {class: "racer"}, r.alias, el("small", {}, ` ${flag(r.country)}`)),
+          el("div", {class: "rank"}, r.rank), avatar(r, 54), el("div", {class: "racer"}, r.alias, " ", flag(r.country)),
           el("div", {class: "laps"}, lapsText(r.laps)), el("div", {class: "score"}, secs(r.score)))));
         $("#board-empty").hidden = board.entries.length > 0;
         $("#board-rows").dataset.count = board.entries.length;
@@ -169,7 +171,10 @@ const Races = (() => {
       const path = replay.laps.flat(); frame = (frame + 1) % (path.length + 60);
       const upto = Math.min(frame, path.length - 1);
       ctx.strokeStyle = replay.colour; ctx.lineWidth = 3; ctx.beginPath();
-      for (let i = Math.max(0, upto - 120); i <= upto; i++) i === Math.max(0, upto - 120) ? ctx.moveTo(...P(path[i])) : ctx.lineTo(...P(path[i]));
+      for (let i = Math.max(0, upto - 120); i <= upto; i++) {  // a reset puts the car back: no line across the jump
+        const jump = i === Math.max(0, upto - 120) || Math.hypot(path[i][0] - path[i - 1][0], path[i][1] - path[i - 1][1]) > 0.4;
+        jump ? ctx.moveTo(...P(path[i])) : ctx.lineTo(...P(path[i]));
+      }
       ctx.stroke(); ctx.lineWidth = 1;
       const [cx, cy] = P(path[upto]); ctx.fillStyle = replay.colour; ctx.beginPath(); ctx.arc(cx, cy, 9, 0, 7); ctx.fill();
       canvas.dataset.frames = (+canvas.dataset.frames || 0) + 1;
