@@ -92,3 +92,15 @@ def test_quota_ledger_reserves_then_returns(store):
     with pytest.raises(QuotaExceeded, match="allows 2 models and 2 exist"):
         quotas.check_job(newbie.id, "train", {"max_time_s": 60.0}, 3600.0)
     quotas.check_job(newbie.id, "resume", {"max_time_s": 60.0}, 3600.0)  # a resume makes no new model
+
+
+def test_users_cli_roles(tmp_path, monkeypatch, capsys):
+    from laplab.cli import main
+    monkeypatch.setenv("LAPLAB_HOME", str(tmp_path / "home"))
+    assert main(["users", "add", "fay", "--role", "facilitator", "--no-sandbox"]) == 0
+    assert main(["users", "add", "kid", "--no-sandbox"]) == 0
+    assert main(["users", "add", "bad", "--admin", "--role", "racer"]) != 0
+    capsys.readouterr()
+    assert main(["users", "list"]) == 0
+    listing = capsys.readouterr().out
+    assert "fay  (facilitator)" in listing and "kid  (racer)" in listing and "admin  (admin)" in listing
