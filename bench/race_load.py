@@ -178,7 +178,7 @@ def main() -> None:
             "evaluations_done": sum(s["state"] == "done" for s in subs), "evaluations_failed":
                 [s["reason"] for s in subs if s["state"] == "failed"],
             "ranked": len(coach.get(board).json()["entries"]), "start_order_inversions": inversions,
-            "race_wall_s": round(race_wall, 1), "trainings": statuses,
+            "race_wall_s": round(race_wall, 1), "training_status": statuses,
             "training_equal_work_ratio": None if ratio is None else round(ratio[0], 3),
             "training_slowdown_pct": None if ratio is None else round(100 * (1 / ratio[0] - 1), 1),
             "latency_ms": {path: {"n": len(v), "p50": round(1000 * percentile(v, 50), 1),

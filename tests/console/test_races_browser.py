@@ -108,6 +108,10 @@ def test_a_class_race_in_chromium(tmp_path, serve_console, admin_token):
             board.wait_for_function("+document.querySelector('#board-rows').dataset.count === 3", timeout=600_000)
             board.wait_for_selector(".board-row.top1")
             board.wait_for_function("+document.querySelector('#replay').dataset.frames > 60", timeout=60_000)
+            # the board shows a new result within 2 s of its evaluation's end (it polls every second)
+            jobs = [console.app.state.store.job(s["job"]) for s in console.admin.get(f"/api/races/{race_id}/submissions").json()]
+            shown_at = float(board.get_attribute("#board-rows", "data-changed-at")) / 1000.0
+            assert shown_at - max(j.finished for j in jobs) < 2.0
             ranks = board.eval_on_selector_all(".board-row", "rows => rows.map(r => r.dataset.rank)")
             assert ranks == ["1", "2", "3"]
             shoot(board, "board")

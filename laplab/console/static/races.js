@@ -146,6 +146,7 @@ const Races = (() => {
           el("div", {class: "rank"}, r.rank), avatar(r, 54), el("div", {class: "racer"}, r.alias, " ", flag(r.country)),
           el("div", {class: "laps"}, lapsText(r.laps)), el("div", {class: "score"}, secs(r.score)))));
         $("#board-empty").hidden = board.entries.length > 0;
+        if (+$("#board-rows").dataset.count !== board.entries.length) $("#board-rows").dataset.changedAt = Date.now();
         $("#board-rows").dataset.count = board.entries.length;
         $("#updated").textContent = `updated ${new Date().toLocaleTimeString()}`;
         if (!outline) outline = await api("GET", `/api/tracks/${encodeURIComponent(race.track)}/outline`);
