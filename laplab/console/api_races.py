@@ -141,9 +141,17 @@ def reopen_race(race_id: int, request: Request, user: User = Depends(current_use
 
 @router.delete("/{race_id}")
 def delete_race(race_id: int, request: Request, user: User = Depends(current_user)) -> dict:
+    """Delete the race and its submissions' records; their evaluations still queued or running stop."""
     race = managed_race(request, race_id, user)
+    service = request.app.state.service
+    stopped = 0
+    for sub in races(request).submissions(race.id):
+        job = service.store.job(sub.job_id)
+        if job is not None and job.status in ("queued", "running"):
+            service.stop(job)
+            stopped += 1
     races(request).delete(race.id)
-    return {"deleted": race.id}
+    return {"deleted": race.id, "evaluations_stopped": stopped}
 
 
 @router.post("/join")

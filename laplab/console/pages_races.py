@@ -12,7 +12,7 @@ from fastapi.responses import HTMLResponse, RedirectResponse
 from laplab.console.api_races import manages, visible_race
 from laplab.console.auth import SESSION_COOKIE, current_user
 from laplab.console.pages import TEMPLATES, _page
-from laplab.console.roles import accounts
+from laplab.console.roles import accounts, races
 from laplab.jobs.db import User
 
 router = APIRouter(include_in_schema=False)
@@ -28,6 +28,16 @@ def new_race_page(request: Request, user: User = Depends(current_user)):
     if not user.runs_races:
         raise HTTPException(403, {"message": "only race facilitators and admins create races"})
     return _page(request, "race_edit.html", user, title="Create race", race_id=None)
+
+
+@router.get("/races/join/{code}")
+def join_link(code: str, request: Request, user: User = Depends(current_user)):
+    """A private race's link: joins it and opens it (a wrong code: 404 naming the rule)."""
+    race = races(request).by_code(code)
+    if race is None:
+        raise HTTPException(404, {"message": "no race has this join code (ask your facilitator for the link)"})
+    races(request).join(race.id, user.id)
+    return RedirectResponse(f"/races/{race.id}", status_code=303)
 
 
 @router.get("/races/{race_id}", response_class=HTMLResponse)

@@ -106,8 +106,10 @@ def test_private_race_submissions_board_and_refusals(console, people, make_model
     assert rid not in [r["id"] for r in rita.get("/api/races").json()]
     assert rita.post("/api/races/join", json={"code": "WRONGCODE"}).status_code == 404
     assert rita.post(f"/api/races/{rid}/submissions", json={"model": "fast"}).status_code == 404
-    for racer in (rita, ravi):
-        assert racer.post("/api/races/join", json={"code": code.lower()}).json()["id"] == rid
+    assert rita.post("/api/races/join", json={"code": code.lower()}).json()["id"] == rid
+    link = ravi.get(f"/races/join/{code}")  # the link joins too
+    assert link.status_code == 303 and link.headers["location"] == f"/races/{rid}"
+    assert ravi.get("/races/join/WRONGCODE").status_code == 404
     assert "code" not in rita.get(f"/api/races/{rid}").json()
     # another facilitator cannot edit, close or delete it
     edit = gus.put(f"/api/races/{rid}", json={**settings, "name": "hijacked"})
@@ -172,7 +174,14 @@ def test_private_race_submissions_board_and_refusals(console, people, make_model
     clone = console.admin.post(f"/api/races/{rid}/clone")
     assert clone.status_code == 201 and clone.json()["owner"] != race["owner"] and clone.json()["code"] != code
     assert clone.json()["laps"] == 2 and fay.get(f"/api/races/{clone.json()['id']}/submissions").status_code == 404
-    assert console.admin.delete(f"/api/races/{clone.json()['id']}").status_code == 200
+    assert console.admin.delete(f"/api/races/{clone.json()['id']}").json()["evaluations_stopped"] == 0
+    # deleting a race stops its evaluations still queued or running
+    short = fay.post("/api/races", json={"name": "Short-lived", "track": "oval", "laps": 1, "ranking": "best_lap"}).json()
+    queued = ravi.post(f"/api/races/{short['id']}/submissions", json={"model": "quick"})
+    assert queued.status_code == 202
+    assert fay.delete(f"/api/races/{short['id']}").json()["evaluations_stopped"] == 1
+    assert ravi.get(f"/api/races/{short['id']}").status_code == 404
+    assert console.app.state.store.job(queued.json()["job"]).status in ("failed", "stopping", "interrupted", "done")
 
 
 def test_quota_refuses_with_nothing_half_done(console, people, make_model):

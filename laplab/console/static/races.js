@@ -100,7 +100,7 @@ const Races = (() => {
     const head = $("#board-head"), last = head.lastElementChild;
     for (let i = 1; i <= race.laps; i++) head.insertBefore(el("th", {class: "num"}, `Lap ${i}`), last);
     $("#race-state").replaceChildren(el("span", {class: `status ${race.open_now ? "running" : "done"}`}, race.open_now ? "open for submissions" : race.closed ? "closed" : "not open now"));
-    if (race.code) { $("#code-box").hidden = false; $("#race-code").textContent = race.code; }
+    if (race.code) { $("#code-box").hidden = false; $("#race-code").textContent = race.code; $("#race-link").textContent = `${location.origin}/races/join/${race.code}`; }
     const models = await api("GET", "/api/models");
     $("#model").replaceChildren(...models.filter(m => m.status === "ready" || m.status === "interrupted").map(m => el("option", {value: m.name}, m.name)));
     $("#submit-form").addEventListener("submit", async ev => {
