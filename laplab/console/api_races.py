@@ -28,11 +28,23 @@ from laplab.races.store import Race
 router = APIRouter(prefix="/api/races", tags=["races"])
 
 
-class RaceBody(BaseModel):
-    """A race's settings (:class:`laplab.races.rules.RaceSettings` checks every value)."""
-    model_config = ConfigDict(extra="allow")
-    name: str = Field(max_length=200)
-    track: str = Field(max_length=200)
+def _race_body() -> type[BaseModel]:
+    """The request body of a race: every :class:`RaceSettings` field, derived from the dataclass (so
+    the two cannot drift; the dataclass's own checks give the error messages)."""
+    from dataclasses import MISSING, fields
+    from typing import get_type_hints
+
+    from pydantic import create_model
+    hints = get_type_hints(RaceSettings)
+    columns = {}
+    for f in fields(RaceSettings):
+        default = f.default if f.default is not MISSING else (
+            f.default_factory() if f.default_factory is not MISSING else ...)
+        columns[f.name] = (hints[f.name], default)
+    return create_model("RaceBody", __config__=ConfigDict(extra="forbid"), __doc__=RaceSettings.__doc__, **columns)
+
+
+RaceBody = _race_body()
 
 
 class Join(BaseModel):
