@@ -54,8 +54,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                             "folder; invalid routes are skipped with the reason.")
     fetch.add_argument("--base-url", help="folder URL holding <name>.npy files (default: $LAPLAB_TRACKS_URL, "
                                           "else the deepracer-simapp bundle/routes/ folder on GitHub)")
-    fetch.add_argument("--names", help="comma-separated route names (default: the server's index.json, "
-                                       "else the simapp names shipped with laplab)")
+    fetch.add_argument("--names", help="comma-separated route names or official display names (\"Smile Speedway\"; "
+                                       "default: the server's index.json, else the simapp names shipped with laplab)")
     fetch.add_argument("--dest", type=Path, help="folder to write into (default: $LAPLAB_HOME/tracks)")
     fetch.add_argument("--overwrite", action="store_true", help="replace existing files whose content differs")
     fetch.set_defaults(func=fetch_command)
@@ -170,7 +170,8 @@ def fetch_command(args: argparse.Namespace) -> int:
     base_url = fetch.resolve_base_url(args.base_url)
     settings = fetch.FetchSettings()
     if args.names:
-        names = [n.strip().removesuffix(".npy") for n in args.names.split(",") if n.strip()]
+        from laplab.races.catalogue import route_names
+        names = route_names([n.strip().removesuffix(".npy") for n in args.names.split(",") if n.strip()])
         origin = "--names"
     else:
         names = fetch.fetch_index(base_url, settings)

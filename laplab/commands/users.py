@@ -12,6 +12,8 @@ def register(subparsers) -> None:
     add = sub.add_parser("add", help="create a user and print their login token (shown once)")
     add.add_argument("name", help="user name (letters, digits, '-', '_', '.')")
     add.add_argument("--admin", action="store_true", help="the user sees every model")
+    add.add_argument("--role", choices=("admin", "facilitator", "racer"), default=None,
+                     help="the user's role (default: racer; admin with --admin); facilitators run races")
     add.add_argument("--no-sandbox", action="store_true",
                      help="create a user although this machine has no working bubblewrap sandbox (their reward "
                           "functions would run unconfined: the console must then be started with --no-sandbox)")
@@ -45,6 +47,9 @@ def _store():
 def run_add(args: argparse.Namespace) -> int:
     from laplab.errors import UserError
     from laplab.jobs.db import StoreError
+    if args.admin and args.role not in (None, "admin"):
+        raise UserError(f"--admin and --role {args.role} contradict each other: give one of them")
+    args.admin = args.admin or args.role == "admin"
     if not args.admin and not args.no_sandbox:
         from laplab.console.safety import NO_SANDBOX_REFUSAL
         from laplab.jobs.confinement import bubblewrap_works
@@ -58,7 +63,7 @@ def run_add(args: argparse.Namespace) -> int:
         first = ensure_admin(store)
         print(f"created the admin first; its token (shown once): {first}")
     try:
-        user, token = store.add_user(args.name, is_admin=args.admin)
+        user, token = store.add_user(args.name, is_admin=args.admin, role=args.role)
     except StoreError as exc:
         raise UserError(str(exc)) from None
     print(f"user {user.name} created; login token (shown once, stored only hashed):\n{token}")
@@ -77,7 +82,7 @@ def run_token(args: argparse.Namespace) -> int:
 
 def run_list(args: argparse.Namespace) -> int:
     for user in _store().user_rows():
-        print(f"{user['name']}{'  (admin)' if user['admin'] else ''}{'  (disabled)' if user['disabled'] else ''}")
+        print(f"{user['name']}  ({user['role']}){'  (disabled)' if user['disabled'] else ''}")
         if args.tokens:
             for token in user["tokens"]:
                 print(f"    token {token['id']}  {token['label']}")

@@ -19,6 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from pydantic import create_model as pydantic_model
 
 from laplab.console.auth import current_user
+from laplab.console.roles import check_quota
 from laplab.console.service import display_name
 from laplab.evaluate.trials import EvaluationSettings
 from laplab.jobs.db import StoreError, User
@@ -197,7 +198,7 @@ def health() -> dict:
 
 @router.get("/me")
 def me(user: User = Depends(current_user)) -> dict:
-    return {"name": user.name, "admin": user.is_admin}
+    return {"name": user.name, "admin": user.is_admin, "role": user.role}
 
 
 @router.get("/models", response_model=list[dict])
@@ -258,6 +259,7 @@ async def create_model(body: CreateModel, request: Request, user: User = Depends
             raise bad_request(str(exc), "physics") from None
     config = _check_train_inputs(values)
     workers = _job_workers(request, body.workers, config.hyper().num_episodes_between_training)
+    check_quota(request, user, "train", values)
     await _validate_and_claim(request, user, key, body, body.reward_function, body.track, body.model_metadata)
     job = service.submit("train", key, user.id, {**{k: v for k, v in values.items() if v is not None}, **workers},
                          reward_source=body.reward_function)
@@ -331,6 +333,7 @@ def resume_model(name: str, request: Request, body: Resume | None = None, user: 
     episodes = (saved.get("hyperparameters") or {}).get("num_episodes_between_training") or 20
     workers = _job_workers(request, body.workers if body else None, episodes)
     owner = service.owners()[name]
+    check_quota(request, user, "resume", {"max_time_s": max_time})
     job = service.submit("resume", name, owner, {**({"max_time_s": max_time} if max_time else {}), **workers})
     return {**service.describe(name, viewer=user), "job": job.to_dict()}
 
@@ -379,6 +382,7 @@ async def clone_model(name: str, body: CloneModel, request: Request, user: User 
               "max_time_s": body.max_time_s, "max_episodes": body.max_episodes}
     config = _check_train_inputs(values)
     workers = _job_workers(request, body.workers, config.hyper().num_episodes_between_training)
+    check_quota(request, user, "clone", values)
     source = body.reward_function
     if source is None:
         source = (models_dir() / name / "reward_function.py").read_text()

@@ -45,6 +45,8 @@ def start_evaluation(name: str, body: Evaluate, request: Request, user: User = D
         raise HTTPException(409, f"{name!r} is training: evaluate it when its training has ended")
     if not (models_dir() / name / "model" / "deepracer_checkpoints.json").exists():
         raise HTTPException(409, f"{name!r} has no checkpoint to evaluate yet")
+    from laplab.console.roles import check_quota
+    check_quota(request, user, "evaluate", body.model_dump())
     job = service.submit("evaluate", name, service.owners()[name], body.model_dump())
     return {"id": job.id, "status": job.status}
 
@@ -232,6 +234,18 @@ async def leaderboard_route(request: Request, track: str | None = None, user: Us
 def tracks(request: Request, user: User = Depends(current_user)) -> list[dict]:
     from laplab.console.tracks import track_list
     return track_list()
+
+
+@router.get("/tracks/catalogue")
+def track_catalogue(user: User = Depends(current_user)) -> list[dict]:
+    """DeepRacer's 62 official tracks by display name, each with its simapp route and whether it is
+    here (``laplab tracks fetch --names "DISPLAY NAME"`` fetches one)."""
+    from laplab.races.catalogue import catalogue
+    from laplab.track.registry import available_tracks
+    here = {t.name for t in available_tracks()}
+    return [{"id": t.id, "name": t.name, "route": t.route, "variants": list(t.variants), "available": t.route in here,
+             "directions": ["counterclockwise", "clockwise"], "fetch": f'laplab tracks fetch --names "{t.name}"'}
+            for t in catalogue()]
 
 
 @router.get("/tracks/{name}/outline")

@@ -46,7 +46,7 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
     run without bubblewrap (:mod:`laplab.console.safety`); ``max_body_bytes`` / ``max_upload_bytes``:
     the largest request body (import: upload) accepted, and ``limits.max_time_s`` the longest training
     (:mod:`laplab.console.limits`)."""
-    from laplab.console import api, api_exports, api_results, api_users, pages
+    from laplab.console import api, api_accounts, api_exports, api_races, api_results, api_users, pages, pages_races
     from laplab.console.service import TICK_S
 
     home = laplab_home()
@@ -86,7 +86,8 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
 
     app = FastAPI(title="laplab console", version="1", lifespan=lifespan, openapi_url=None, docs_url=None,
                   redoc_url=None,
-                  description="DeepRacer's console on laplab: models, training jobs, evaluations, leaderboard.")
+                  description="DeepRacer's console on laplab: models, training jobs, evaluations, leaderboard, races, "
+                              "invitations, quotas.")
     app.state.store, app.state.service, app.state.secret = store, service, load_secret(home)
     app.state.open_access, app.state.sandbox = open_access, runner.sandbox
     app.state.allow_unsandboxed = bool(allow_unsandboxed)
@@ -94,6 +95,10 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
     app.add_middleware(BodyLimit, json_bytes=max_body_bytes, upload_bytes=max_upload_bytes)
     app.state.cluster = cluster
     app.state.first_token = first_token
+    from laplab.jobs.accounts import Accounts
+    from laplab.jobs.quotas import Quotas
+    from laplab.races.store import RaceStore
+    app.state.accounts, app.state.quotas, app.state.races = Accounts(store), Quotas(store), RaceStore(store)
 
     @app.exception_handler(RequestValidationError)
     async def validation_error(request: Request, exc: RequestValidationError):
@@ -126,5 +131,8 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
     app.include_router(api_results.router)
     app.include_router(api_exports.router)
     app.include_router(api_users.router)
+    app.include_router(api_accounts.router)
+    app.include_router(api_races.router)
     app.include_router(pages.router)
+    app.include_router(pages_races.router)
     return app

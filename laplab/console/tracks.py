@@ -11,14 +11,16 @@ from laplab.jobs.db import laplab_home
 
 
 def track_list() -> list[dict]:
+    from laplab.races.catalogue import display_names
     from laplab.track.registry import available_tracks, load_track
-    out = []
+    out, names = [], display_names()
     for entry in available_tracks():
         try:
             track = load_track(entry.name)
         except Exception:  # noqa: BLE001 - a broken user file is left out of the picker, not fatal
             continue
-        out.append({"name": entry.name, "source": entry.source, "length_m": round(float(track.length), 2),
+        out.append({"name": entry.name, "display_name": names.get(entry.name, entry.name), "source": entry.source,
+                    "length_m": round(float(track.length), 2),
                     "width_m": round(float(np.median(track.road_width)), 3),
                     "picture": f"/api/tracks/{entry.name}/picture.png"})
     return out

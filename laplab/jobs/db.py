@@ -52,11 +52,26 @@ class StoreError(ValueError):
     """A request the store refuses (unknown user, duplicate name...), with a complete message."""
 
 
+ROLES = ("admin", "facilitator", "racer")  # DeepRacer on AWS's three (docs/races.md)
+
+
 @dataclass(frozen=True)
 class User:
+    """A console account; ``role`` is one of :data:`ROLES` (``is_admin`` is ``role == "admin"``)."""
     id: int
     name: str
     is_admin: bool
+    role: str = "racer"
+
+    @property
+    def runs_races(self) -> bool:
+        """Admins and race facilitators create and run races."""
+        return self.role in ("admin", "facilitator")
+
+
+def _user(row: sqlite3.Row) -> User:
+    role = row["role"] if row["role"] in ROLES else ("admin" if row["is_admin"] else "racer")
+    return User(int(row["id"]), row["name"], bool(row["is_admin"]), role)
 
 
 @dataclass(frozen=True)
@@ -113,8 +128,7 @@ class JobStore:
         self._db.execute("PRAGMA synchronous=NORMAL")
         self._db.execute("PRAGMA foreign_keys=ON")
         self._db.executescript(_SCHEMA)
-        if "disabled" not in {r["name"] for r in self._db.execute("PRAGMA table_info(users)")}:
-            self._db.execute("ALTER TABLE users ADD COLUMN disabled INTEGER NOT NULL DEFAULT 0")
+        self._migrate_users()
         os.chmod(self.path, 0o600)
         self._data_version = self._db.execute("PRAGMA data_version").fetchone()[0]
         self._verified: dict[str, tuple[int, float | None, str]] = {}  # sha256(token) -> (user id, expiry, token id)
@@ -122,6 +136,30 @@ class JobStore:
         self._verifying_guard = threading.Lock()
         self._sessions: dict[str, tuple[int, float]] = {}  # sha256(session) -> (user id, expiry)
         self._users: dict[int, User] = {}  # enabled users, read on demand; dropped when disabled or removed
+
+    def _migrate_users(self) -> None:
+        """Add the columns later versions use to an older database: ``disabled``; ``role`` (existing
+        admins stay admins, everyone else becomes a racer); ``password`` (argon2, None: token only)."""
+        columns = {r["name"] for r in self._db.execute("PRAGMA table_info(users)")}
+        if "disabled" not in columns:
+            self._db.execute("ALTER TABLE users ADD COLUMN disabled INTEGER NOT NULL DEFAULT 0")
+        if "role" not in columns:
+            self._db.execute("ALTER TABLE users ADD COLUMN role TEXT NOT NULL DEFAULT 'racer'")
+            self._db.execute("UPDATE users SET role='admin' WHERE is_admin=1")
+        if "password" not in columns:
+            self._db.execute("ALTER TABLE users ADD COLUMN password TEXT")
+
+    def execute(self, sql: str, args: tuple = ()) -> sqlite3.Cursor:
+        """One statement under the store's lock (for the modules that keep their own tables here:
+        :mod:`laplab.jobs.accounts`, :mod:`laplab.jobs.quotas`, :mod:`laplab.races.store`)."""
+        return self._execute(sql, args)
+
+    def select(self, sql: str, args: tuple = ()) -> list[sqlite3.Row]:
+        return self._rows(sql, args)
+
+    @property
+    def lock(self) -> threading.RLock:
+        return self._lock
 
     def credentials_changed(self) -> bool:
         """Drop what memory holds about tokens, sessions and users when another process (``laplab users
@@ -159,16 +197,21 @@ class JobStore:
     # -- users and tokens ------------------------------------------------------------------------
 
     def add_user(self, name: str, is_admin: bool = False, token: str | None = None,
-                 token_label: str = "login") -> tuple[User, str]:
-        """Create user ``name`` with a fresh login token; returns the user and the token (shown once)."""
+                 token_label: str = "login", role: str | None = None) -> tuple[User, str]:
+        """Create user ``name`` with a fresh login token; returns the user and the token (shown once).
+        ``role``: one of :data:`ROLES` (default: admin for ``is_admin``, else racer)."""
+        role = role or ("admin" if is_admin else "racer")
+        if role not in ROLES:
+            raise StoreError(f"invalid role {role!r}: one of {', '.join(ROLES)}")
+        is_admin = role == "admin"
         if not name or not all(c.isalnum() or c in "-_." for c in name) or len(name) > 64:
             raise StoreError(f"invalid user name {name!r}: 1 to 64 letters, digits, '-', '_' or '.'")
         with self._lock:
             if self._rows("SELECT 1 FROM users WHERE name=?", (name,)):
                 raise StoreError(f"a user named {name!r} already exists")
-            cur = self._execute("INSERT INTO users(name, is_admin, created) VALUES (?,?,?)",
-                                (name, int(is_admin), time.time()))
-            user = User(int(cur.lastrowid), name, is_admin)
+            cur = self._execute("INSERT INTO users(name, is_admin, created, role) VALUES (?,?,?,?)",
+                                (name, int(is_admin), time.time(), role))
+            user = User(int(cur.lastrowid), name, is_admin, role)
         return user, self.add_token(user.id, token_label, token=token)
 
     def add_token(self, user_id: int, label: str, token: str | None = None, lifetime_s: float | None = None) -> str:
@@ -237,19 +280,19 @@ class JobStore:
         user = self._users.get(user_id)
         if user is None and not enabled:
             rows = self._rows("SELECT * FROM users WHERE id=?", (user_id,))
-            return User(rows[0]["id"], rows[0]["name"], bool(rows[0]["is_admin"])) if rows else None
+            return _user(rows[0]) if rows else None
         if user is None:
             rows = self._rows("SELECT * FROM users WHERE id=? AND disabled=0", (user_id,))
             if rows:
-                user = self._users[user_id] = User(rows[0]["id"], rows[0]["name"], bool(rows[0]["is_admin"]))
+                user = self._users[user_id] = _user(rows[0])
         return user
 
     def user_by_name(self, name: str) -> User | None:
         rows = self._rows("SELECT * FROM users WHERE name=?", (name,))
-        return User(rows[0]["id"], rows[0]["name"], bool(rows[0]["is_admin"])) if rows else None
+        return _user(rows[0]) if rows else None
 
     def users(self) -> list[User]:
-        return [User(r["id"], r["name"], bool(r["is_admin"])) for r in self._rows("SELECT * FROM users ORDER BY id")]
+        return [_user(r) for r in self._rows("SELECT * FROM users ORDER BY id")]
 
     def user_rows(self) -> list[dict]:
         """Every user with ``disabled`` and their tokens (id, label, created, expires): no secrets."""
@@ -257,7 +300,7 @@ class JobStore:
         for row in self._rows("SELECT id, user_id, label, created, expires FROM tokens ORDER BY created"):
             tokens.setdefault(row["user_id"], []).append({"id": row["id"], "label": row["label"],
                                                           "created": row["created"], "expires": row["expires"]})
-        return [{"name": r["name"], "admin": bool(r["is_admin"]), "disabled": bool(r["disabled"]),
+        return [{"name": r["name"], "admin": bool(r["is_admin"]), "role": _user(r).role, "disabled": bool(r["disabled"]),
                  "created": r["created"], "tokens": tokens.get(r["id"], [])}
                 for r in self._rows("SELECT * FROM users ORDER BY id")]
 
@@ -309,7 +352,7 @@ class JobStore:
 
     def admin(self) -> User | None:
         rows = self._rows("SELECT * FROM users WHERE is_admin=1 AND disabled=0 ORDER BY id LIMIT 1")
-        return User(rows[0]["id"], rows[0]["name"], True) if rows else None
+        return _user(rows[0]) if rows else None
 
     # -- sessions --------------------------------------------------------------------------------
 

@@ -145,7 +145,7 @@ const Console = (() => {
     const grid = $("#tracks");
     const renderTracks = () => grid.replaceChildren(...tracks.map(t => el("button", {type: "button", role: "radio", "aria-checked": String(t.name === trackName),
       class: `track${t.name === trackName ? " selected" : ""}`, "data-track": t.name, onclick: () => { trackName = t.name; renderTracks(); }},
-      el("img", {src: t.picture, alt: t.name, loading: "lazy"}), el("b", {}, t.name),
+      el("img", {src: t.picture, alt: t.name, loading: "lazy"}), el("b", {}, t.display_name || t.name),
       el("span", {}, `${t.length_m.toFixed(1)} m long · ${t.width_m.toFixed(2)} m wide · ${t.source}`))));
     renderTracks();
 
@@ -335,7 +335,7 @@ const Console = (() => {
       frame(); setInterval(frame, 1000);
     }
     const tracks = await api("GET", "/api/tracks");
-    $("#eval-track").replaceChildren(...tracks.map(t => el("option", {value: t.name, selected: t.name === model.track}, t.name)));
+    $("#eval-track").replaceChildren(...tracks.map(t => el("option", {value: t.name, selected: t.name === model.track}, t.display_name || t.name)));
     const refresh = async () => { model = await api("GET", `/api/models/${name}`); rows = model.iterations || []; renderModel(); renderRows(); };
     const events = new EventSource(`/api/models/${name}/events`);
     events.addEventListener("iteration", ev => { const r = JSON.parse(ev.data); if (!rows.length || rows[rows.length - 1].iteration < r.iteration) rows.push(r); $("#stat-progress").textContent = `${fmt(r.progress, 0)} %`; renderRows();

@@ -1,0 +1,1 @@
+"""Races for classes and clubs: rules (ranking, windows, validation), storage, the track catalogue."""
