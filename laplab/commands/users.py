@@ -66,6 +66,9 @@ def run_add(args: argparse.Namespace) -> int:
         user, token = store.add_user(args.name, is_admin=args.admin, role=args.role)
     except StoreError as exc:
         raise UserError(str(exc)) from None
+    if not user.is_admin:  # every new account starts with the new-user quota, however it was made
+        from laplab.jobs.quotas import Quotas
+        Quotas(store).apply_new_user_quota(user.id)
     print(f"user {user.name} created; login token (shown once, stored only hashed):\n{token}")
     return 0
 

@@ -50,6 +50,9 @@ def create_user(body: NewUser, request: Request, user: User = Depends(current_us
     store = _admin(request, user)
     refuse_unless_admitted(request.app.state, body.admin)
     created, token = _store_call(request, lambda: store.add_user(body.name, is_admin=body.admin))
+    if not created.is_admin:  # as an invitation's sign-up: the new-user quota
+        from laplab.jobs.quotas import Quotas
+        Quotas(store).apply_new_user_quota(created.id)
     return {"name": created.name, "admin": created.is_admin, "token": token}
 
 

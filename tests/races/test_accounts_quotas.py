@@ -104,3 +104,17 @@ def test_users_cli_roles(tmp_path, monkeypatch, capsys):
     assert main(["users", "list"]) == 0
     listing = capsys.readouterr().out
     assert "fay  (facilitator)" in listing and "kid  (racer)" in listing and "admin  (admin)" in listing
+
+
+def test_a_user_made_by_the_cli_gets_the_new_user_quota(tmp_path, monkeypatch):
+    from laplab.cli import main
+    from laplab.jobs.db import JobStore
+    from laplab.jobs.quotas import Quotas
+    monkeypatch.setenv("LAPLAB_HOME", str(tmp_path / "home"))
+    assert main(["users", "add", "first", "--no-sandbox"]) == 0  # makes the admin and the database
+    store = JobStore()
+    Quotas(store).set_settings({"new_user_minutes": 30.0, "new_user_models": 3})
+    assert main(["users", "add", "second", "--no-sandbox"]) == 0
+    store = JobStore()
+    assert Quotas(store).user_limits(store.user_by_name("second").id) == (30.0, 3)
+    assert Quotas(store).user_limits(store.user_by_name("admin").id) == (None, None)
