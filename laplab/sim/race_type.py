@@ -64,7 +64,7 @@ class RaceType:
 
     def __post_init__(self) -> None:
         if self.kind not in RACE_TYPES:
-            raise RaceTypeError(f"race type: unknown {self.kind!r}; known: {', '.join(RACE_TYPES)}",
+            raise RaceTypeError(f"--race-type: unknown race type {self.kind!r}; known: {', '.join(RACE_TYPES)}",
                                 field="--race-type")
         positions = tuple((float(p[0]), int(p[1])) for p in self.object_positions)
         object.__setattr__(self, "object_positions", positions)
