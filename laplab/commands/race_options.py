@@ -57,4 +57,7 @@ def race_type_from_args(args: argparse.Namespace) -> RaceType | None:
             raise RaceTypeError(f"{first} is an option of a race type: add --race-type object_avoidance or "
                                 f"--race-type head_to_bot", field=first)
         return None
+    if kind == "head_to_model":
+        raise RaceTypeError("--race-type head_to_model races trained models against each other: `laplab race MODEL_A "
+                            "MODEL_B`; train for it with object_avoidance or head_to_bot", field="--race-type")
     return RaceType(kind=kind, **values)
