@@ -301,6 +301,18 @@ class Simulator:
             self._collide(stepped)
         return stepped
 
+    def let_obstacles_drive(self, cars: np.ndarray, seconds: np.ndarray) -> None:
+        """Move the bots of ``cars`` on by ``seconds`` (K,) while the cars stand (an evaluation penalty)."""
+        field = self.field
+        if field is None or not field.moving or self.race.kind == HEAD_TO_MODEL:
+            return
+        cars = np.asarray(cars, dtype=np.int64)
+        steps = np.ceil(np.asarray(seconds, dtype=np.float64) / self.dt - 1e-9).astype(np.int64)
+        for k in range(int(steps.max(initial=0))):
+            field.advance(cars[steps > k])
+        field.update(self.state, cars)
+        self._summarise(cars)
+
     def _collide(self, stepped: np.ndarray) -> None:
         """After a step: other models' cars move to their new poses, cars that hit an obstacle crash,
         and the STATE summaries follow."""
