@@ -40,6 +40,7 @@ for _code, _kind in ((OFF_TRACK, "off_track"), (REVERSED, "reversed"), (IMMOBILI
     _INCIDENT_INDEX[_code] = INCIDENTS.index(_kind)
 _ROW_STATUS = np.array(STATUS_NAMES + ("pause",))
 _PAUSE = len(STATUS_NAMES)
+OBSTACLES_KEY = "_obstacles"
 
 
 class TrialRun(NamedTuple):
@@ -49,6 +50,7 @@ class TrialRun(NamedTuple):
     trials: tuple[TrialResult, ...]
     trace: dict[str, np.ndarray]
     decisions: int
+    obstacles: np.ndarray | None = None  # (rows, slots, 7) the Obstacles fields at each trace row
 
 
 def reset_poses(track: Track, reference_offset: float, arc: np.ndarray, near: np.ndarray) -> np.ndarray:
@@ -125,9 +127,12 @@ def _rows(sim: Simulator, cars: np.ndarray, trials: np.ndarray, clock: np.ndarra
     """Simtrace columns of K rows, one per car of ``cars`` (its current state); ``status`` holds row
     status indices into ``_ROW_STATUS``; ``clock`` is trial time, shifted onto the evaluation clock later."""
     k = cars.size
-    return simtrace_rows(sim, cars, action, np.zeros(k), episode=trials, steps=steps, tstamp=clock, done=done,
+    rows = simtrace_rows(sim, cars, action, np.zeros(k), episode=trials, steps=steps, tstamp=clock, done=done,
                          episode_status=status, pause_duration=penalty.astype(np.float64),
                          obstacle_crash_counter=crashes.astype(np.int64), wall_clock=np.full(k, wall))
+    if sim.field is not None:  # each row's obstacles (K, slots, 6), for videos; not a simtrace column
+        rows[OBSTACLES_KEY] = np.stack(list(sim.obstacles.rows(cars)), axis=-1)
+    return rows
 
 
 def run_trials(stepper: EpisodeStepper, observe: Callable[[np.ndarray], Any], act: Callable[[Any], np.ndarray],
@@ -250,5 +255,5 @@ def _assemble(finished, counts, resets, penalties, parts, decisions) -> TrialRun
     trace = {name: values[order] for name, values in trace.items()}
     trace["tstamp"] = trace["tstamp"] + starts[trace["episode"]]
     trace["episode_status"] = _ROW_STATUS[trace["episode_status"]]
-    return TrialRun(trials, trace, decisions)
+    return TrialRun(trials, trace, decisions, trace.pop(OBSTACLES_KEY, None))
 

@@ -126,6 +126,7 @@ class EvaluationResult:
     video: str | None = None
     trained_car: str | None = None
     race_type: dict | None = None  # laplab.sim.race_type.RaceType.to_dict(); None: a time trial
+    obstacles: np.ndarray | None = field(default=None, repr=False)  # (rows, slots, 7) per trace row
 
     def to_dict(self) -> dict[str, Any]:
         """The ``summary.json`` document."""
@@ -207,7 +208,8 @@ def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = Ev
                             summary=summarize(run.trials, optimal_lap_time, standing_start_lap_time), trace=run.trace,
                             decisions=run.decisions, wall_seconds=time.perf_counter() - started,
                             model=getattr(policy, "name", None), checkpoint=getattr(policy, "checkpoint", None),
-                            race_type=sim.race.to_dict() if sim.race.has_objects else None)
+                            race_type=sim.race.to_dict() if sim.race.has_objects else None,
+                            obstacles=run.obstacles)
 
 
 def save_evaluation(folder: ModelFolder, result: EvaluationResult) -> tuple[str, EvaluationResult]:

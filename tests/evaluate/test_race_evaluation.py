@@ -76,3 +76,17 @@ def test_time_trial_evaluations_record_no_race_type(wide_track):
                              EvaluationSettings(trials=1, force=True, max_trial_time=1.0), spec=model_spec(METADATA),
                              vehicle=CLASSIC)
     assert result.to_dict()["race_type"] is None
+
+
+def test_topdown_pictures_show_the_boxes(wide_track):
+    from laplab.evaluate.video import trial_obstacles
+    from laplab.sensors.render import draw_topdown
+    race = RaceType("object_avoidance", object_positions=((0.3, 1), (0.7, -1)))
+    result = evaluate_policy(LaneDriver(), wide_track, EvaluationSettings(trials=1, force=True, max_trial_time=2.0),
+                             spec=model_spec(METADATA), vehicle=CLASSIC, race=race)
+    assert result.obstacles.shape == (len(result.trace["episode"]), 2, 7)
+    frame_obstacles = trial_obstacles(result, 0, 10)(0)
+    plain = draw_topdown(wide_track)
+    with_boxes = draw_topdown(wide_track, obstacles=frame_obstacles)
+    brown = (with_boxes == np.array([123, 97, 79], dtype=np.uint8)).all(axis=-1)
+    assert brown.sum() > 20 and not (plain == np.array([123, 97, 79], dtype=np.uint8)).all(axis=-1).any()
