@@ -181,12 +181,15 @@ class ObstacleField:
                                   bool(race.lane_change), float(race.lane_change_distance), uniform,
                                   float(race.lane_change_min_s), float(race.lane_change_max_s))
 
-    def update(self, state, cars: np.ndarray) -> None:
+    def update(self, state, cars: np.ndarray, ghost: np.ndarray | None = None) -> None:
         """Write the world poses of the obstacles of ``cars`` into :attr:`obstacles` (head-to-model:
-        the bodies of the other cars of each group, from the simulator's ``state``)."""
+        the bodies of the other cars of each group, from the simulator's ``state``; a car in ``ghost``
+        (N,) bool, or whose episode ended, is no obstacle)."""
+        if ghost is None:
+            ghost = np.zeros(self.num_cars, dtype=np.bool_)
         ob = self.obstacles
         if self.race.kind == HEAD_TO_MODEL:
-            _group_bodies(cars, self.group, state.x, state.y, state.yaw, state.speed, state.status,
+            _group_bodies(cars, self.group, state.x, state.y, state.yaw, state.speed, state.status, ghost,
                           self.body_offset, ob.x, ob.y, ob.yaw, ob.kind, self.speed)
             return
         _poses(cars, state.direction, self.arc, self.frac, self.slope, self.arrays[0], self.arrays[1],
@@ -220,7 +223,7 @@ def _poses(cars, direction, arc, frac, slope, fwd, rev, ox, oy, oyaw):
 
 
 @nb.njit(cache=True)
-def _group_bodies(cars, group, x, y, yaw, speed, status, body_offset, ox, oy, oyaw, okind, ospeed):
+def _group_bodies(cars, group, x, y, yaw, speed, status, ghost, body_offset, ox, oy, oyaw, okind, ospeed):
     # slot j of car i: the j-th other car of its group; a car whose race ended leaves the track
     for n in range(cars.shape[0]):
         i = cars[n]
@@ -231,7 +234,7 @@ def _group_bodies(cars, group, x, y, yaw, speed, status, body_offset, ox, oy, oy
                 continue
             c, s = math.cos(yaw[other]), math.sin(yaw[other])
             ox[i, j], oy[i, j], oyaw[i, j] = x[other] + body_offset * c, y[other] + body_offset * s, yaw[other]
-            okind[i, j] = MODEL_CAR if status[other] == 0 else EMPTY
+            okind[i, j] = MODEL_CAR if status[other] == 0 and not ghost[other] else EMPTY
             ospeed[i, j] = speed[other]
             j += 1
 

@@ -49,6 +49,8 @@ class Simulator:
         extra = summary_size() if (self.field is not None and state_sensor) else 0
         self.obs = empty_obs(self.num_cars, (state_sensor.size if state_sensor else 0) + extra)
         self.last_hit = np.full(self.num_cars, -1, dtype=np.int64)  # slot each car hit on its last step
+        # cars that collide with nothing and are no obstacle to others (DeepRacer's blinking car serving a penalty)
+        self.ghost = np.zeros(self.num_cars, dtype=np.bool_)
         self._no_obstacles = no_obstacles(self.num_cars)
         self._look = (state_sensor.lookahead_count, state_sensor.spacing) if state_sensor else (1, 1.0)
         self._vc = dynamics_constants(vehicle) + (float(vehicle.dt), float(vehicle.reference_offset),
@@ -137,7 +139,7 @@ class Simulator:
         if self.field is not None:
             self.field.reset(cars, st.direction[cars])
             self._start_beside_obstacles(cars)
-            self.field.update(st, np.arange(self.num_cars) if self.race.kind == HEAD_TO_MODEL else cars)
+            self.field.update(st, np.arange(self.num_cars) if self.race.kind == HEAD_TO_MODEL else cars, self.ghost)
         self._observe(cars)
 
     def _start_beside_obstacles(self, cars: np.ndarray) -> None:
@@ -320,8 +322,8 @@ class Simulator:
         field, ob, st = self.field, self.field.obstacles, self.state
         cars = np.flatnonzero(stepped)
         if self.race.kind == HEAD_TO_MODEL:
-            field.update(st, np.arange(self.num_cars))
-        crash_check(st, stepped, ob.x, ob.y, ob.yaw, ob.half_length, ob.half_width, ob.kind, COLLISION_MARGIN,
+            field.update(st, np.arange(self.num_cars), self.ghost)
+        crash_check(st, stepped & ~self.ghost, ob.x, ob.y, ob.yaw, ob.half_length, ob.half_width, ob.kind, COLLISION_MARGIN,
                     field.body_offset, field.body_half_length, field.body_half_width, self.last_hit)
         self._summarise(cars)
 
