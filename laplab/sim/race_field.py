@@ -53,6 +53,15 @@ def lane_pose(arc, frac, dfrac_ds, centerline, arc_length, left_w, right_w):
 
 
 @nb.njit(cache=True)
+def lane_poses(arc, frac, centerline, arc_length, left_w, right_w):
+    """(K, 3) :func:`lane_pose` of K points (no lane change)."""
+    out = np.empty((arc.shape[0], 3))
+    for k in range(arc.shape[0]):
+        out[k, 0], out[k, 1], out[k, 2] = lane_pose(arc[k], frac[k], 0.0, centerline, arc_length, left_w, right_w)
+    return out
+
+
+@nb.njit(cache=True)
 def advance_bots(cars, time, arc, frac, frac_from, frac_to, change_start, next_change, speed, dt,
                  lane_change, change_dist, uniform, change_min, change_max):
     """Move the bots of ``cars`` one step along their lanes, starting and finishing lane changes
@@ -151,19 +160,26 @@ class ObstacleField:
         race = self.race
         if race.kind == HEAD_TO_MODEL or cars.size == 0:
             return
-        for car, d in zip(cars.tolist(), direction.tolist()):
-            length = self.arrays[d].length
-            if race.kind == OBJECT_AVOIDANCE and race.object_positions:
-                arcs = np.array([p[0] for p in race.object_positions]) * length
-                lanes = np.array([float(p[1]) for p in race.object_positions])
-            elif race.kind == OBJECT_AVOIDANCE:
-                arcs = spread(race.objects, length, race.min_object_distance, race.randomize_objects, self.rng)
-                lanes = self._lanes(race.objects, race.randomize_objects)
-            else:
-                arcs = spread(race.bots, length, race.min_bot_distance, race.randomize_bots, self.rng)
-                lanes = self._lanes(race.bots, race.randomize_bots, race.bot_lane)
-            self.arc[car] = arcs
-            self.frac[car] = self.frac_from[car] = self.frac_to[car] = LANE * lanes * self.inner_sign[d]
+        length = self.arrays[0].length
+        random = race.randomize_objects if race.kind == OBJECT_AVOIDANCE else race.randomize_bots
+        if race.kind == OBJECT_AVOIDANCE and race.object_positions:
+            arcs = np.array([p[0] for p in race.object_positions]) * length
+            lanes = np.array([float(p[1]) for p in race.object_positions])
+        elif race.kind == OBJECT_AVOIDANCE:
+            arcs = spread(race.objects, length, race.min_object_distance, False, self.rng)
+            lanes = self._lanes(race.objects, False)
+        else:
+            arcs = spread(race.bots, length, race.min_bot_distance, False, self.rng)
+            lanes = self._lanes(race.bots, False, race.bot_lane)
+        if random and not (race.kind == OBJECT_AVOIDANCE and race.object_positions):  # drawn per car
+            count, gap = (race.objects, race.min_object_distance) if race.kind == OBJECT_AVOIDANCE else \
+                (race.bots, race.min_bot_distance)
+            arcs = np.stack([spread(count, length, gap, True, self.rng) for _ in range(cars.size)])
+            lanes = np.stack([self._lanes(count, True, "alternate" if race.kind == OBJECT_AVOIDANCE else race.bot_lane)
+                              for _ in range(cars.size)])
+        self.arc[cars] = arcs
+        frac = LANE * lanes * self.inner_sign[direction][:, None]
+        self.frac[cars] = self.frac_from[cars] = self.frac_to[cars] = frac
         self.time[cars] = 0.0
         self.slope[cars] = 0.0
         if race.kind == HEAD_TO_BOT:

@@ -145,7 +145,7 @@ class Simulator:
     def _start_beside_obstacles(self, cars: np.ndarray) -> None:
         """DeepRacer's start rule: a car whose start has an obstacle within 1 m (along the track) starts
         in the other lane; head-to-model cars start side by side, inner and outer lane in turn."""
-        from laplab.sim.race_field import LANE, lane_pose
+        from laplab.sim.race_field import LANE, lane_poses
         st, field = self.state, self.field
         if self.race.kind == HEAD_TO_MODEL:
             frac = np.where((cars % field.group) % 2 == 0, LANE, -LANE) * field.inner_sign[st.direction[cars]]
@@ -157,14 +157,17 @@ class Simulator:
             cars = cars[blocked]
             lane = field.frac[cars, near[blocked]]
             frac = np.where(lane > 0, -LANE, LANE)
-        for car, f in zip(cars.tolist(), frac.tolist()):
-            d = int(st.direction[car])
-            geo = self.arrays[d]
-            x, y, yaw = lane_pose(st.start_arc[car], f, 0.0, geo.centerline, geo.arc_length, geo.left_width,
-                                  geo.right_width)
-            st.x[car], st.y[car] = x, y
-            proj = self._project_reference(np.array([car]), d, np.array([[x, y, st.yaw[car]]]))
-            st.travel[car] = wrapped_travel(proj.arc_length[0] - st.start_arc[car], self.tracks[d].length)
+        for d in (0, 1):
+            sel = st.direction[cars] == d
+            if not sel.any():
+                continue
+            sub, geo = cars[sel], self.arrays[d]
+            poses = lane_poses(st.start_arc[sub], frac[sel], geo.centerline, geo.arc_length, geo.left_width,
+                               geo.right_width)
+            poses[:, 2] = st.yaw[sub]
+            st.x[sub], st.y[sub] = poses[:, 0], poses[:, 1]
+            proj = self._project_reference(sub, d, poses)
+            st.travel[sub] = wrapped_travel(proj.arc_length - st.start_arc[sub], self.tracks[d].length)
 
     def _observe(self, cars: np.ndarray) -> None:
         """Recompute the STATE observation rows of ``cars`` from their current state."""
