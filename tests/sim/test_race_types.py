@@ -285,3 +285,19 @@ def test_race_type_round_trips():
     race = RaceType("object_avoidance", object_positions=((0.2, 1),), randomize_objects=False)
     assert RaceType.from_dict(race.to_dict()) == race
     assert RaceType.from_dict(None) == RaceType()
+
+
+def test_vector_env_with_boxes_ends_episodes_crashed_and_observes_the_summary():
+    from laplab.env import TimeTrialVectorEnv
+    race = RaceType("object_avoidance", objects=6, min_object_distance=1.5)
+    env = TimeTrialVectorEnv(16, track=TRACK, reward_function=None, race=race, seed=0)
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (16, 27 + summary_size()) and env.single_observation_space.shape == (39,)
+    statuses = set()
+    straight = np.full(16, 3)  # a discrete action near straight ahead
+    for _ in range(150):
+        obs, _, terminated, _, info = env.step(straight)
+        statuses |= set(info["episode_status"][terminated].tolist())
+    assert "crashed" in statuses
+    frame_obstacles = env.sim.obstacles
+    assert frame_obstacles.x.shape == (16, 6)
