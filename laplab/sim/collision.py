@@ -15,6 +15,7 @@ import math
 import numba as nb
 import numpy as np
 
+from laplab.sim.kernel import PARALLEL_THRESHOLD
 from laplab.sim.obstacles import BOT_CAR, BOX, EMPTY, MODEL_CAR
 from laplab.sim.state import CRASHED, IN_PROGRESS, OFF_TRACK
 
@@ -48,56 +49,124 @@ def rectangles_overlap(ax, ay, ayaw, a_hl, a_hw, bx, by, byaw, b_hl, b_hw):
     return True
 
 
-@nb.njit(cache=True)
-def crash_check(st, stepped, ox, oy, oyaw, ohl, ohw, okind, margin, body_offset, body_hl, body_hw, hit):
+def crash_check(st, stepped, ox, oy, oyaw, ohl, ohw, okind, margin, body_offset, body_hl, body_hw, hit) -> None:
     """Mark stepped cars whose body overlaps an obstacle as ``crashed`` (unless their lap just
-    completed); ``hit`` (N,) gets the slot hit, -1 for none. Returns the number of crashes."""
-    crashes = 0
-    for i in range(st.x.shape[0]):
+    completed); ``hit`` (N,) gets the slot hit, -1 for none. Parallel over cars for large batches."""
+    n = st.x.shape[0]
+    args = (st.x, st.y, st.yaw, st.status, stepped, ox, oy, oyaw, ohl, ohw, okind, margin, body_offset, body_hl,
+            body_hw, hit)
+    if n >= PARALLEL_THRESHOLD:
+        _crash_parallel(8 * nb.get_num_threads(), n, *args)
+    else:
+        _crash_range(0, n, *args)
+
+
+@nb.njit(cache=True, parallel=True)
+def _crash_parallel(chunks, n, car_x, car_y, car_yaw, status, stepped, ox, oy, oyaw, ohl, ohw, okind, margin,
+                    body_offset, body_hl, body_hw, hit):
+    size = (n + chunks - 1) // chunks
+    for c in nb.prange(chunks):
+        _crash_range(min(c * size, n), min((c + 1) * size, n), car_x, car_y, car_yaw, status, stepped, ox, oy, oyaw,
+                     ohl, ohw, okind, margin, body_offset, body_hl, body_hw, hit)
+
+
+@nb.njit(cache=True)
+def _crash_range(lo, hi, car_x, car_y, car_yaw, status, stepped, ox, oy, oyaw, ohl, ohw, okind, margin, body_offset,
+                 body_hl, body_hw, hit):
+    for i in range(lo, hi):
         hit[i] = -1
-        if not stepped[i] or not (st.status[i] == IN_PROGRESS or st.status[i] == OFF_TRACK):
+        if not stepped[i] or not (status[i] == IN_PROGRESS or status[i] == OFF_TRACK):
             continue
-        c, s = math.cos(st.yaw[i]), math.sin(st.yaw[i])
-        cx, cy = st.x[i] + body_offset * c, st.y[i] + body_offset * s
+        c, s = math.cos(car_yaw[i]), math.sin(car_yaw[i])
+        cx, cy = car_x[i] + body_offset * c, car_y[i] + body_offset * s
+        car_reach = math.hypot(body_hl, body_hw)
         for k in range(ox.shape[1]):
             kind = okind[i, k]
             if kind == EMPTY:
                 continue
             m = margin[kind]
-            if rectangles_overlap(cx, cy, st.yaw[i], body_hl, body_hw, ox[i, k], oy[i, k], oyaw[i, k],
+            reach = car_reach + math.hypot(ohl[i, k] + m, ohw[i, k] + m)
+            if (ox[i, k] - cx) ** 2 + (oy[i, k] - cy) ** 2 > reach * reach:  # the circles around both miss
+                continue
+            if rectangles_overlap(cx, cy, car_yaw[i], body_hl, body_hw, ox[i, k], oy[i, k], oyaw[i, k],
                                   ohl[i, k] + m, ohw[i, k] + m):
-                st.status[i] = CRASHED
+                status[i] = CRASHED
                 hit[i] = k
-                crashes += 1
                 break
-    return crashes
 
 
-@nb.njit(cache=True)
-def write_summary(obs, first, cars, st, ox, oy, okind, ospeed, max_speed, count):
+def write_summary(obs, first, cars, st, ox, oy, okind, ospeed, max_speed, count) -> None:
     """Fill ``obs[i, first:first + 4 * count]`` of the cars ``cars`` with their ``count`` nearest
     obstacles (from the reference point), nearest first: forward and left offsets in the car frame
     divided by SUMMARY_RANGE (clipped to +-1), 1 when present, speed / max_speed; empty slots are 0."""
+    n = cars.shape[0]
+    args = (obs, first, cars, st.yaw, st.ref_x, st.ref_y, ox, oy, okind, ospeed, max_speed, count)
+    if n >= PARALLEL_THRESHOLD:
+        _summary_parallel(8 * nb.get_num_threads(), n, *args)
+    else:
+        _summary_range(0, n, *args)
+
+
+@nb.njit(cache=True, parallel=True)
+def _summary_parallel(chunks, n, obs, first, cars, yaw, ref_x, ref_y, ox, oy, okind, ospeed, max_speed, count):
+    size = (n + chunks - 1) // chunks
+    for c in nb.prange(chunks):
+        _summary_range(min(c * size, n), min((c + 1) * size, n), obs, first, cars, yaw, ref_x, ref_y, ox, oy, okind,
+                       ospeed, max_speed, count)
+
+
+@nb.njit(cache=True)
+def _summary_range(lo, hi, obs, first, cars, yaw, ref_x, ref_y, ox, oy, okind, ospeed, max_speed, count):
     k_all = ox.shape[1]
     dist = np.empty(k_all)
-    for n in range(cars.shape[0]):
+    for n in range(lo, hi):
         i = cars[n]
         for j in range(first, first + SUMMARY_FEATURES * count):
             obs[i, j] = 0.0
-        c, s = math.cos(st.yaw[i]), math.sin(st.yaw[i])
+        c, s = math.cos(yaw[i]), math.sin(yaw[i])
         for k in range(k_all):
-            dist[k] = math.hypot(ox[i, k] - st.ref_x[i], oy[i, k] - st.ref_y[i]) if okind[i, k] != EMPTY else np.inf
-        order = np.argsort(dist)
+            dist[k] = math.hypot(ox[i, k] - ref_x[i], oy[i, k] - ref_y[i]) if okind[i, k] != EMPTY else np.inf
         for rank in range(min(count, k_all)):
-            k = order[rank]
-            if okind[i, k] == EMPTY:
+            k = 0  # the nearest not yet taken (K is small: a selection, no allocation)
+            for j in range(1, k_all):
+                if dist[j] < dist[k]:
+                    k = j
+            if dist[k] == np.inf:
                 break
-            px, py = ox[i, k] - st.ref_x[i], oy[i, k] - st.ref_y[i]
+            dist[k] = np.inf
+            px, py = ox[i, k] - ref_x[i], oy[i, k] - ref_y[i]
             base = first + SUMMARY_FEATURES * rank
             obs[i, base] = min(max((c * px + s * py) / SUMMARY_RANGE, -1.0), 1.0)
             obs[i, base + 1] = min(max((-s * px + c * py) / SUMMARY_RANGE, -1.0), 1.0)
             obs[i, base + 2] = 1.0
             obs[i, base + 3] = ospeed[i, k] / max_speed
+
+
+@nb.njit(cache=True, parallel=True)
+def _collide_and_summarise_parallel(chunks, n, car_x, car_y, car_yaw, status, stepped, ox, oy, oyaw, ohl, ohw, okind,
+                                    margin, body_offset, body_hl, body_hw, hit, obs, first, cars, ref_x, ref_y, ospeed,
+                                    max_speed, count):
+    size = (n + chunks - 1) // chunks
+    for c in nb.prange(chunks):
+        lo, hi = min(c * size, n), min((c + 1) * size, n)
+        _crash_range(lo, hi, car_x, car_y, car_yaw, status, stepped, ox, oy, oyaw, ohl, ohw, okind, margin,
+                     body_offset, body_hl, body_hw, hit)
+        if count > 0:
+            _summary_range(lo, hi, obs, first, cars, car_yaw, ref_x, ref_y, ox, oy, okind, ospeed, max_speed, count)
+
+
+def collide_and_summarise(st, stepped, ob, margin, body, hit, obs, first, ospeed, max_speed, count) -> None:
+    """:func:`crash_check` of the stepped cars, then :func:`write_summary` of every car (``count`` 0: no
+    summary), in one pass over the cars (one thread-pool launch for large batches)."""
+    n = st.x.shape[0]
+    if n < PARALLEL_THRESHOLD:
+        crash_check(st, stepped, ob.x, ob.y, ob.yaw, ob.half_length, ob.half_width, ob.kind, margin, *body, hit)
+        if count > 0:
+            write_summary(obs, first, np.flatnonzero(stepped), st, ob.x, ob.y, ob.kind, ospeed, max_speed, count)
+        return
+    _collide_and_summarise_parallel(8 * nb.get_num_threads(), n, st.x, st.y, st.yaw, st.status, stepped, ob.x, ob.y,
+                                    ob.yaw, ob.half_length, ob.half_width, ob.kind, margin, *body, hit, obs, first,
+                                    np.arange(n), st.ref_x, st.ref_y, ospeed, max_speed, count)
 
 
 KIND_CODES = {"box": BOX, "bot_car": BOT_CAR, "model_car": MODEL_CAR}

@@ -22,6 +22,7 @@ import math
 import numba as nb
 import numpy as np
 
+from laplab.sim.kernel import PARALLEL_THRESHOLD
 from laplab.sim.obstacles import BOT_CAR, BOX, EMPTY, MODEL_CAR, Obstacles, no_obstacles
 from laplab.sim.race_type import HEAD_TO_BOT, HEAD_TO_MODEL, OBJECT_AVOIDANCE, RaceType
 
@@ -208,8 +209,12 @@ class ObstacleField:
             _group_bodies(cars, self.group, state.x, state.y, state.yaw, state.speed, state.status, ghost,
                           self.body_offset, ob.x, ob.y, ob.yaw, ob.kind, self.speed)
             return
-        _poses(cars, state.direction, self.arc, self.frac, self.slope, self.arrays[0], self.arrays[1],
-               ob.x, ob.y, ob.yaw)
+        args = (cars, state.direction, self.arc, self.frac, self.slope, self.arrays[0], self.arrays[1], ob.x, ob.y,
+                ob.yaw)
+        if cars.size >= PARALLEL_THRESHOLD:
+            _poses_parallel(8 * nb.get_num_threads(), cars.size, *args)
+        else:
+            _poses(0, cars.size, *args)
 
     def distances(self, direction: np.ndarray, cars: np.ndarray) -> np.ndarray:
         """(K, slots) DeepRacer's ``objects_distance``: arc length of each obstacle along the centre line of
@@ -227,9 +232,16 @@ class ObstacleField:
         return out
 
 
+@nb.njit(cache=True, parallel=True)
+def _poses_parallel(chunks, n, cars, direction, arc, frac, slope, fwd, rev, ox, oy, oyaw):
+    size = (n + chunks - 1) // chunks
+    for c in nb.prange(chunks):
+        _poses(min(c * size, n), min((c + 1) * size, n), cars, direction, arc, frac, slope, fwd, rev, ox, oy, oyaw)
+
+
 @nb.njit(cache=True)
-def _poses(cars, direction, arc, frac, slope, fwd, rev, ox, oy, oyaw):
-    for n in range(cars.shape[0]):
+def _poses(lo, hi, cars, direction, arc, frac, slope, fwd, rev, ox, oy, oyaw):
+    for n in range(lo, hi):
         i = cars[n]
         geo = fwd if direction[i] == 0 else rev
         for k in range(arc.shape[1]):

@@ -321,14 +321,14 @@ class Simulator:
     def _collide(self, stepped: np.ndarray) -> None:
         """After a step: other models' cars move to their new poses, cars that hit an obstacle crash,
         and the STATE summaries follow."""
-        from laplab.sim.collision import COLLISION_MARGIN, crash_check
-        field, ob, st = self.field, self.field.obstacles, self.state
-        cars = np.flatnonzero(stepped)
+        from laplab.sim.collision import COLLISION_MARGIN, SUMMARY_COUNT, collide_and_summarise
+        field, st = self.field, self.state
         if self.race.kind == HEAD_TO_MODEL:
             field.update(st, np.arange(self.num_cars), self.ghost)
-        crash_check(st, stepped & ~self.ghost, ob.x, ob.y, ob.yaw, ob.half_length, ob.half_width, ob.kind, COLLISION_MARGIN,
-                    field.body_offset, field.body_half_length, field.body_half_width, self.last_hit)
-        self._summarise(cars)
+        count = SUMMARY_COUNT if self.obs.shape[1] > self._summary_at else 0
+        collide_and_summarise(st, stepped & ~self.ghost, field.obstacles, COLLISION_MARGIN,
+                              (field.body_offset, field.body_half_length, field.body_half_width), self.last_hit,
+                              self.obs, self._summary_at, field.speed, float(self.vehicle.max_speed), count)
 
 
 def wrapped_travel(delta: np.ndarray, length: float) -> np.ndarray:
