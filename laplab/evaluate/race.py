@@ -13,8 +13,9 @@ sensors (each reads its own observations), but must share one car (physics versi
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -23,7 +24,13 @@ from laplab.env.spec import ModelSpec
 from laplab.evaluate.runner import put_back
 from laplab.sim.race_type import RaceType, RaceTypeError
 from laplab.sim.simulator import Simulator
-from laplab.sim.state import CRASHED, IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES, EpisodeParams
+from laplab.sim.state import (
+    CRASHED,
+    IN_PROGRESS,
+    LAP_COMPLETE,
+    STATUS_NAMES,
+    EpisodeParams,
+)
 from laplab.track.geometry import Track
 from laplab.vehicle.params import VehicleParams
 

@@ -8,7 +8,6 @@ import json
 import pytest
 
 from laplab.cli import main
-
 from tests.evaluate.conftest import train_tiny_model
 
 
