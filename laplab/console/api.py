@@ -47,6 +47,7 @@ class CreateModel(CloneModel):
     classic; None: the one model_metadata's ``version`` chooses)."""
     seed: int = 0
     physics: str | None = Field(None, max_length=32)
+    race_type: dict | None = Field(None, description="laplab.sim.race_type.RaceType's fields (None: time trial)")
 
 
 class Resume(BaseModel):
@@ -76,6 +77,7 @@ class ValidateReward(BaseModel):
     source: str = Field(max_length=100_000)
     track: str | None = None
     model_metadata: dict | None = None
+    race_type: dict | None = None
 
 
 def _service(request: Request):
@@ -99,10 +101,13 @@ def _input_errors() -> tuple[type[BaseException], ...]:
 def _field_of(exc: BaseException) -> str | None:
     """The request field an input error is about (laplab.errors.UserError carries it)."""
     field = getattr(exc, "field", None)
+    from laplab.sim.race_type import RaceTypeError
+    if isinstance(exc, RaceTypeError):  # its option (--objects, ...) is a key of the request's race_type
+        return "race_type"
     return field if field in _REQUEST_FIELDS else None
 
 
-_REQUEST_FIELDS = ("hyperparameters", "model_metadata", "name", "track", "physics")
+_REQUEST_FIELDS = ("hyperparameters", "model_metadata", "name", "track", "physics", "race_type")
 
 
 def own_model(request: Request, name: str, user: User) -> str:
@@ -136,7 +141,8 @@ def _check_train_inputs(values: dict):
     check_track_name(values.get("track"))
     try:
         config = replace(TrainConfig(), **{k: v for k, v in values.items() if v is not None})
-        load_track(config.track)
+        track = load_track(config.track)
+        config.race_type.check_track(track.length, track.name)
     except _input_errors() as exc:
         raise bad_request(str(exc), _field_of(exc) or ("max_time_s" if "max time" in str(exc) else None)) from None
     except (TypeError, ValueError) as exc:
@@ -157,10 +163,11 @@ def _job_workers(request: Request, requested: int | None, episodes: int) -> dict
     return {"workers": count} if cluster is not None else {}
 
 
-async def _validate_reward(request: Request, user: User, source: str, track: str | None, metadata: dict | None) -> dict:
+async def _validate_reward(request: Request, user: User, source: str, track: str | None, metadata: dict | None,
+                           race_type: dict | None = None) -> dict:
     from laplab.jobs.validate import validate_confined
     return await run_in_threadpool(validate_confined, source, track, metadata, user.id,
-                                   request.app.state.sandbox)
+                                   request.app.state.sandbox, race_type)
 
 
 def check_max_time(request: Request, max_time_s: float | None) -> None:
@@ -233,7 +240,8 @@ async def _validate_and_claim(request: Request, user: User, key: str, body: Clon
     """Run the validation sweep on ``reward_source`` (None: the default reward, nothing to check; a
     failure is a 400 naming its line), then claim ``key`` (``body.name``) for ``user`` (409 when taken)."""
     if reward_source is not None:
-        answer = await _validate_reward(request, user, reward_source, track, model_metadata)
+        answer = await _validate_reward(request, user, reward_source, track, model_metadata,
+                                        getattr(body, "race_type", None))
         if not answer["ok"]:
             first = answer["errors"][0]
             raise bad_request(first["message"], "reward_function", line=first.get("line"), errors=answer["errors"])
@@ -257,6 +265,12 @@ async def create_model(body: CreateModel, request: Request, user: User = Depends
             values["vehicle"] = resolve_physics(body.physics, option="physics")
         except PhysicsError as exc:
             raise bad_request(str(exc), "physics") from None
+    if body.race_type:
+        from laplab.sim.race_type import RaceType, RaceTypeError
+        try:
+            values["race_type"] = RaceType.from_dict(body.race_type, "race_type").to_dict()
+        except (RaceTypeError, TypeError) as exc:
+            raise bad_request(str(exc), "race_type") from None
     config = _check_train_inputs(values)
     workers = _job_workers(request, body.workers, config.hyper().num_episodes_between_training)
     check_quota(request, user, "train", values)
