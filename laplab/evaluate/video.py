@@ -42,14 +42,15 @@ def trial_poses(result, trial: int = 0) -> tuple[np.ndarray, dict[str, np.ndarra
 
 
 def trial_obstacles(result, trial: int, count: int):
-    """A function of a frame index giving that row's :class:`~laplab.sim.obstacles.Obstacles` (1, K) of
-    trial ``trial``; None for an evaluation without obstacles."""
+    """Trial ``trial``'s obstacles of its first ``count`` rows as one
+    :class:`~laplab.sim.obstacles.Obstacles` (count, K), a row per frame; None for an evaluation without
+    obstacles."""
     if getattr(result, "obstacles", None) is None:
         return None
     from laplab.sim.obstacles import Obstacles
     rows = result.obstacles[result.trace["episode"] == trial][:count]
-    return lambda t: Obstacles(*(rows[t:t + 1, :, j] if j < 6 else rows[t:t + 1, :, j].astype(np.int64)
-                                 for j in range(7)))
+    return Obstacles(*(np.ascontiguousarray(rows[:, :, j]) if j < 6 else rows[:, :, j].astype(np.int64)
+                       for j in range(7)))
 
 
 def write_trial_video(path: str | Path, result, trial: int = 0, camera: bool = True) -> Path:
@@ -67,12 +68,13 @@ def write_trial_video(path: str | Path, result, trial: int = 0, camera: bool = T
     path_xy = poses[:, :2]
     obstacles = trial_obstacles(result, trial, len(poses))
     topdown = _TopdownFrames(lambda t: draw_topdown(track, poses[t:t + 1], paths=[path_xy[: t + 1]],
-                                                    obstacles=None if obstacles is None else obstacles(t)), len(poses))
+                                                    obstacles=None if obstacles is None else obstacles.rows(slice(t, t + 1))),
+                             len(poses))
     frames = None
-    if camera:
+    if camera:  # the front camera sees the boxes and bots of each frame as solid objects
         from laplab.sensors.camera import FRONT_FACING_CAMERA, render_camera
         from laplab.sensors.look import texture_for_track
-        frames = render_camera(texture_for_track(track), poses, FRONT_FACING_CAMERA)
+        frames = render_camera(texture_for_track(track), poses, FRONT_FACING_CAMERA, obstacles=obstacles)
     start = result.trials[trial].start_time
     overlays = {"speed": columns["throttle"], "steering": columns["steer"], "progress": columns["progress"],
                 "time": [f"{t - start:.2f} s" for t in columns["tstamp"]],

@@ -85,8 +85,23 @@ def test_topdown_pictures_show_the_boxes(wide_track):
     result = evaluate_policy(LaneDriver(), wide_track, EvaluationSettings(trials=1, force=True, max_trial_time=2.0),
                              spec=model_spec(METADATA), vehicle=CLASSIC, race=race)
     assert result.obstacles.shape == (len(result.trace["episode"]), 2, 7)
-    frame_obstacles = trial_obstacles(result, 0, 10)(0)
+    trial = trial_obstacles(result, 0, 10)
+    assert trial.x.shape == (10, 2)  # a row per frame
     plain = draw_topdown(wide_track)
-    with_boxes = draw_topdown(wide_track, obstacles=frame_obstacles)
+    with_boxes = draw_topdown(wide_track, obstacles=trial.rows(slice(0, 1)))
     brown = (with_boxes == np.array([123, 97, 79], dtype=np.uint8)).all(axis=-1)
     assert brown.sum() > 20 and not (plain == np.array([123, 97, 79], dtype=np.uint8)).all(axis=-1).any()
+
+
+def test_the_video_camera_sees_the_boxes(wide_track):
+    from laplab.evaluate.video import trial_obstacles, trial_poses
+    from laplab.sensors.camera import FRONT_FACING_CAMERA, render_camera
+    from laplab.sensors.look import texture_for_track
+    race = RaceType("object_avoidance", object_positions=((0.1, 1), (0.6, -1)))
+    result = evaluate_policy(LaneDriver(), wide_track, EvaluationSettings(trials=1, force=True, max_trial_time=2.0),
+                             spec=model_spec(METADATA), vehicle=CLASSIC, race=race)
+    poses, _ = trial_poses(result, 0)
+    texture = texture_for_track(wide_track)
+    plain = render_camera(texture, poses[:5], FRONT_FACING_CAMERA)
+    seen = render_camera(texture, poses[:5], FRONT_FACING_CAMERA, obstacles=trial_obstacles(result, 0, 5))
+    assert (plain != seen).any()  # the box ahead is in the frames the video shows
