@@ -202,14 +202,28 @@ def training_metrics(name: str, store: str | None = None) -> list[dict[str, Any]
                         "JSON ({\"metrics\": [...]})") from None
 
 
-def _run(args: list[str], what: str) -> str:
-    done = subprocess.run(_laplab(*args), capture_output=True, text=True, stdin=subprocess.DEVNULL, env=_environment())
-    if done.returncode != 0:  # the command's own paragraph, without libraries' log lines before it
-        lines = (done.stderr.strip() or done.stdout.strip()).splitlines()
+def _run(args: list[str], what: str) -> tuple[str, dict]:
+    """Run ``laplab ARGS``; (its printed output, its JSON outcome: :mod:`laplab.commands.outcome`).
+    A refusal raises :class:`UserError` with the command's own message and field."""
+    import tempfile
+
+    from laplab.commands.outcome import RESULT_FILE_ENV
+    with tempfile.TemporaryDirectory(prefix="laplab-api-") as scratch:
+        result_file = Path(scratch) / "outcome.json"
+        done = subprocess.run(_laplab(*args), capture_output=True, text=True, stdin=subprocess.DEVNULL,
+                              env={**_environment(), RESULT_FILE_ENV: str(result_file)})
+        try:
+            outcome = json.loads(result_file.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            outcome = {}
+    if done.returncode != 0:
+        if outcome.get("error"):
+            raise UserError(f"{what} failed: {outcome['error']}", field=outcome.get("field"))
+        lines = (done.stderr.strip() or done.stdout.strip()).splitlines()  # a crash: its last words
         ours = [i for i, line in enumerate(lines) if line.startswith("laplab")]
         message = " ".join(lines[ours[0]:] if ours else lines[-6:]) or f"exit code {done.returncode}"
         raise UserError(f"{what} failed: {message}")
-    return done.stdout
+    return done.stdout, outcome
 
 
 def evaluate(name: str, track: str | None = None, trials: int = 3, store: str | None = None,
@@ -222,7 +236,7 @@ def evaluate(name: str, track: str | None = None, trials: int = 3, store: str | 
         args += ["--physics", str(physics)]
     if track:
         args += ["--track", track]
-    return json.loads(_run(args, f"evaluating {name!r}"))
+    return json.loads(_run(args, f"evaluating {name!r}")[0])
 
 
 def export_for_car(name: str, out: str | os.PathLike, store: str | None = None, checkpoint: str = "best") -> Path:
@@ -249,11 +263,7 @@ def import_model(source: str | os.PathLike, name: str | None = None) -> str:
     args = ["import", text if text.startswith("s3://") else str(Path(text).resolve())]
     if name:
         args += ["--name", name]
-    out = _run(args, f"importing {text}")
-    for line in out.splitlines():
-        if line.startswith("imported model '"):
-            return line[len("imported model '"):].split("'", 1)[0]
-    raise UserError(f"importing {text}: laplab import reported no model name ({out.strip()[:200]})")
+    return str(_run(args, f"importing {text}")[1]["model"])
 
 
 def race_type_args(race_type) -> list[str]:
