@@ -77,18 +77,19 @@ class ModelCatalog:
         config = _read_json(folder.laplab_config) or {}
         metadata = _read_json(folder.model_metadata) or config.get("model_metadata") or {}
         iterations = (_read_json(folder.metrics_dir / "laplab-iterations.json") or {}).get("iterations", [])
-        best = None
+        training_best = None
         for row in iterations:
             if row.get("best_lap_time") is not None:
-                best = row["best_lap_time"] if best is None else min(best, row["best_lap_time"])
-        best = _best_with_evaluations(folder, best)
+                training_best = row["best_lap_time"] if training_best is None else min(training_best, row["best_lap_time"])
+        best = _best_evaluated_lap(folder, config)
         created = folder.root.stat().st_mtime if folder.root.exists() else None
         if folder.laplab_config.exists():
             created = folder.laplab_config.stat().st_mtime
         summary = {"name": name, "track": config.get("track"), "sensor": metadata.get("sensor"),
                    "algorithm": metadata.get("training_algorithm"),
                    "action_space_type": metadata.get("action_space_type"),
-                   "created": _iso(created), "best_lap_time": best, "iteration_count": len(iterations),
+                   "created": _iso(created), "best_lap_time": best, "best_training_lap": training_best,
+                   "iteration_count": len(iterations),
                    "max_time_s": config.get("max_time_s"), "error": folder.read_error(),
                    "race_type": _race_summary(config.get("race_type")),
                    "evaluations": len(folder.list_evaluations()) if folder.exists() else 0,
@@ -404,20 +405,18 @@ class ConsoleService:
         self._publish_status(job.model, job_id, model_status, kind=job.kind, error=error)
 
 
-def _best_with_evaluations(folder: ModelFolder, best: float | None) -> float | None:
-    """The best lap of training and of the model's evaluations (s), None without a lap."""
+def _best_evaluated_lap(folder: ModelFolder, config: dict) -> float | None:
+    """The model's best lap, as laplab defines it everywhere (:func:`laplab.evaluate.leaderboard.
+    best_evaluated_lap`): evaluations under the standard rules on its training track and race."""
     if not folder.exists():
-        return best
-    from laplab.evaluate.trials import read_evaluation_summary
-    for stamp in folder.list_evaluations():
-        try:
-            document = read_evaluation_summary(folder, stamp) or {}
-        except Exception:  # noqa: BLE001 - a damaged summary leaves the list as it is
-            continue
-        lap = (document.get("summary") or {}).get("best_lap")
-        if lap is not None:
-            best = lap if best is None else min(best, lap)
-    return best
+        return None
+    from laplab.evaluate.leaderboard import best_evaluated_lap, load_records_of
+    try:
+        records = load_records_of(folder.name, folder.root.parent)
+    except Exception:  # noqa: BLE001 - a damaged summary: no best lap rather than a broken list
+        return None
+    return best_evaluated_lap(folder.name, config.get("track"), _race_summary(config.get("race_type")) or "time trial",
+                              records)
 
 
 def default_workers() -> int:

@@ -7,6 +7,12 @@ by its best evaluation on the track under that same order. Evaluations without l
 ``summary.json`` (made by other tools) carry no track and are not ranked. Race types are ranked
 apart: a board is one track and one race (``"track"`` for time trials, ``"track [object avoidance:
 3 boxes, evenly spaced]"`` for the others, from the evaluation's ``race_type``).
+
+Only evaluations under the **standard rules** rank (:func:`standard_rules`): the console's off-track
+penalty (2 s), the race's own collision penalty, unlimited resets, separate trials, the greedy policy,
+the car the model trained with. An evaluation under other rules stays on its model's page. "Best lap"
+means one thing everywhere (:func:`best_evaluated_lap`): a model's fastest evaluated lap under the
+standard rules on its own training track and race; a lap of training is a "best training lap".
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ class EvaluationRecord:
     checkpoint: str | None
     summary: EvaluationSummary
     race: str = "time trial"  # RaceType.summary() of the evaluation's race
+    standard: bool = True  # run under the standard rules (standard_rules), so it ranks
 
     @property
     def board(self) -> str:
@@ -63,9 +70,14 @@ def load_records(root: str | os.PathLike | None = None) -> list[EvaluationRecord
 
     A summary.json that cannot be read raises :class:`EvaluationError` naming the file.
     """
+    return [record for name in list_models(root) for record in load_records_of(name, root)]
+
+
+def load_records_of(name: str, root: str | os.PathLike | None = None) -> list[EvaluationRecord]:
+    """The laplab evaluations of model ``name`` (see :func:`load_records`)."""
     records = []
-    for name in list_models(root):
-        folder = model_folder(name, root)
+    folder = model_folder(name, root)
+    if folder.exists():
         for stamp in folder.list_evaluations():
             document = read_evaluation_summary(folder, stamp)
             if document is None:
@@ -77,8 +89,32 @@ def load_records(root: str | os.PathLike | None = None) -> list[EvaluationRecord
             except (KeyError, TypeError, ValueError) as exc:
                 raise EvaluationError(f"{source}: unreadable evaluation summary ({exc})") from None
             records.append(EvaluationRecord(name, stamp, str(track), document.get("checkpoint"), summary,
-                                            _race_of(document.get("race_type"), source)))
+                                            _race_of(document.get("race_type"), source), standard_rules(document)))
     return records
+
+
+def standard_rules(document: dict) -> bool:
+    """Whether a summary.json's evaluation ran under the standard rules (see the module docstring)."""
+    from laplab.evaluate.trials import EvaluationSettings
+    settings, default = document.get("settings") or {}, EvaluationSettings()
+    race = document.get("race_type") or {}
+    collision = race.get("collision_penalty", default.crash_penalty) if isinstance(race, dict) else default.crash_penalty
+    trained, driven = document.get("trained_car"), document.get("car")
+    return (settings.get("off_track_penalty", default.off_track_penalty) == default.off_track_penalty
+            and settings.get("crash_penalty", default.crash_penalty) == collision
+            and settings.get("resets") is None and not settings.get("continuous") and not settings.get("stochastic")
+            and (trained is None or driven is None or trained == driven))
+
+
+def best_evaluated_lap(model: str, track: str | None, race: str = "time trial",
+                       records: list[EvaluationRecord] | None = None,
+                       root: str | os.PathLike | None = None) -> float | None:
+    """Model ``model``'s best lap (s): its fastest completed lap of an evaluation under the standard
+    rules on ``track`` (its training track) in ``race``; None without one."""
+    records = load_records_of(model, root) if records is None else records
+    laps = [r.summary.best_lap for r in records if r.model == model and r.standard and r.track == track
+            and r.race == race and r.summary.best_lap is not None]
+    return min(laps) if laps else None
 
 
 def _race_of(data, source: str) -> str:
@@ -98,10 +134,10 @@ def _sort_key(record: EvaluationRecord) -> tuple:
 
 def rank(records: list[EvaluationRecord], track: str | None = None) -> dict[str, list[LeaderboardEntry]]:
     """Leaderboards per track and race (:attr:`EvaluationRecord.board`; only track ``track`` when
-    given): each model's best evaluation there, ranked; boards in name order."""
+    given): each model's best evaluation there under the standard rules, ranked; boards in name order."""
     by_track: dict[str, dict[str, EvaluationRecord]] = {}
     for record in records:
-        if track is not None and record.track != track:
+        if not record.standard or (track is not None and record.track != track):
             continue
         models = by_track.setdefault(record.board, {})
         best = models.get(record.model)

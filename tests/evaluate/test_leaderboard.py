@@ -61,7 +61,7 @@ def test_summary_figures():
         summarize([])
 
 
-def add_evaluation(model, laps, track="classic_2018", minutes=0, race_type=None, **kwargs):
+def add_evaluation(model, laps, track="classic_2018", minutes=0, race_type=None, settings=None, **kwargs):
     folder = model_folder(model)
     if not folder.laplab_config.exists():
         folder.create().write_laplab_config({"track": track})
@@ -71,6 +71,8 @@ def add_evaluation(model, laps, track="classic_2018", minutes=0, race_type=None,
                 "trials": [t.to_dict() for t in ts], "summary": summarize(ts, OPTIMAL).to_dict()}
     if race_type is not None:
         document["race_type"] = race_type
+    if settings is not None:
+        document.update(settings)
     atomic_write_json(folder.evaluation_dir(stamp) / "summary.json", document)
     return stamp
 
@@ -181,3 +183,17 @@ def test_summary_names_the_flying_and_the_standing_start_optimum():
     text = "\n".join(summary_lines(summarize(trials([6.0]), flying, standing)))
     assert f"{flying:.3f} s (race line, flying; {standing:.3f} s from a standing start)" in text
     assert "unknown" in "\n".join(summary_lines(summarize(trials([6.0]))))
+
+
+def test_only_evaluations_under_the_standard_rules_rank_and_best_lap_means_one_thing():
+    from laplab.evaluate.leaderboard import best_evaluated_lap
+    add_evaluation("steady", [10.0, 10.0, 10.0], settings={"settings": {"off_track_penalty": 2.0, "crash_penalty": 5.0}})
+    # faster, but under other rules: a 0 s off-track penalty, another car, continuous laps, sampling
+    add_evaluation("soft", [7.0, 7.0, 7.0], settings={"settings": {"off_track_penalty": 0.0}})
+    add_evaluation("other-car", [6.0, 6.0, 6.0], settings={"car": "deepracer-v4", "trained_car": "deepracer-v6"})
+    add_evaluation("steady", [5.0, 5.0, 5.0], minutes=1, settings={"settings": {"continuous": True}})
+    add_evaluation("steady", [8.0, 9.0, None], minutes=2, track="oval")  # another track
+    assert [e.model for e in leaderboard()["classic_2018"]] == ["steady"]
+    assert best_evaluated_lap("steady", "classic_2018") == 10.0  # not the continuous 5.0, not oval's 8.0
+    assert best_evaluated_lap("soft", "classic_2018") is None
+    assert best_evaluated_lap("steady", "oval") == 8.0

@@ -300,6 +300,7 @@ const Console = (() => {
     };
     const renderModel = () => {
       setStatus(model.status, model.progress);
+      $("#stat-best-evaluated").textContent = lap(model.best_lap_time);  // evaluated, standard rules
       if (model.status === "queued" && model.queue_position) $("#status").textContent = `queued: ${model.queue_position === 1 ? "next to start" : `number ${model.queue_position} in line`}`;
       $("#model-error").textContent = model.status === "failed" || model.status === "interrupted" ? (model.error || model.job?.error || "") : "";
       const cfg = model.config || {}; const meta = cfg.model_metadata || {};
