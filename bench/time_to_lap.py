@@ -24,12 +24,21 @@ and ``--device cuda`` puts the learner on a GPU, as ``laplab train`` does: issue
 
   python bench/time_to_lap.py --tracks classic_2018 --seeds 0 1 2 --console ppo-discrete --workers 14 --device cuda --budget 600
 
+``--race oa3`` trains for DeepRacer's object avoidance with 3 fixed boxes (at 25 %, 50 % and 75 % of the
+lap, inner, outer, inner lane) and ``--race h2b2`` for head-to-bot with 2 bots at 1 m/s; evaluation
+laps end at a collision, so 3/3 laps is 3 laps without one (issue 32's rows, for an idle machine):
+
+  python bench/time_to_lap.py --tracks classic_2018 --seeds 0 --race oa3 --budget 600
+  python bench/time_to_lap.py --tracks classic_2018 --seeds 0 --race oa3 --sensor FRONT_FACING_CAMERA --budget 1800
+  python bench/time_to_lap.py --tracks classic_2018 --seeds 0 --race h2b2 --budget 600
+
 Usage:
   python bench/time_to_lap.py [--seeds 0 1 2] [--tracks classic_2018 ../shared/reference-tracks/reinvent_base.npy]
                               [--sensor STATE|FRONT_FACING_CAMERA] [--console sac|ppo-continuous|ppo-discrete]
                               [--budget 600] [--min-time 0]
                               [--precision auto|float32|bfloat16] [--hyperparameters '{"num_epochs": 5}']
-                              [--workers 1] [--device cpu|cuda] [--ray-address ADDR]
+                              [--workers 1] [--device cpu|cuda] [--ray-address ADDR] [--race oa3|h2b2]
+                              [--reward reward_function.py]
 """
 
 from __future__ import annotations
@@ -47,9 +56,19 @@ REFERENCE = Path(__file__).resolve().parents[1].parent / "shared" / "reference-t
 DEFAULT_TRACKS = ["classic_2018", str(REFERENCE / "reinvent_base.npy"), str(REFERENCE / "2022_summit_speedway.npy")]
 
 
+def race_for(label: str | None):
+    """The race type of a ``--race`` label (None: a time trial)."""
+    from laplab.sim.race_type import RaceType
+    if label is None:
+        return RaceType()
+    return {"oa3": RaceType("object_avoidance", object_positions=((0.25, 1), (0.5, -1), (0.75, 1))),
+            "h2b2": RaceType("head_to_bot", bots=2, bot_speed=1.0)}[label]
+
+
 def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s: float = 0.0,
                 precision: str = "auto", hyperparameters: dict | None = None, console: str | None = None,
-                workers: int = 1, device: str = "cpu", ray_address: str | None = None, car: str = "") -> dict:
+                workers: int = 1, device: str = "cpu", ray_address: str | None = None, car: str = "",
+                race: str | None = None, reward: str | None = None) -> dict:
     from laplab.cluster.launch import uses_ray
     from laplab.env.metadata import ModelMetadata
     from laplab.train.config import TrainConfig
@@ -61,7 +80,8 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
     else:
         metadata = replace(ModelMetadata(), sensors=(sensor,)).to_dict()
     config = replace(TrainConfig(), track=track, seed=seed, max_time_s=budget_s, model_metadata=metadata,
-                     precision=precision, workers=workers, vehicle=car)
+                     precision=precision, workers=workers, vehicle=car, race_type=race_for(race),
+                     reward_path=str(Path(reward).resolve()) if reward else None)
     if hyperparameters:
         config = replace(config, hyperparameters={**config.hyper().to_dict(), **hyperparameters})
     name = f"bench-{Path(track).stem.replace('_', '-')}-{seed}-{int(time.time() * 1000) % 10**8}"
@@ -125,6 +145,9 @@ def main() -> None:
     parser.add_argument("--device", default="cpu", help="the learner's torch device: cpu or cuda")
     parser.add_argument("--ray-address", default=None, help="join this Ray cluster (default: a local Ray)")
     parser.add_argument("--physics", default=None, help="the car: 4, 5, 6 or classic (default: the model's version)")
+    parser.add_argument("--race", choices=("oa3", "h2b2"), default=None,
+                        help="oa3: object avoidance, 3 fixed boxes; h2b2: head-to-bot, 2 bots at 1 m/s")
+    parser.add_argument("--reward", default=None, help="reward_function.py (default: laplab's)")
     args = parser.parse_args()
     from laplab.vehicle.physics import resolve_physics
     car = resolve_physics(args.physics) if args.physics else ""
@@ -141,6 +164,8 @@ def main() -> None:
         label += f" x{args.workers}"
     if device != "cpu":
         label += f" {device}"
+    if args.race:
+        label += f" {args.race}"
     os.environ.setdefault("LAPLAB_HOME", tempfile.mkdtemp(prefix="laplab-bench-"))
     print(f"{'track':28s} {'model':20s} {'lapped':>6s} {'time to 3/3 s':>13s} {'iters':>5s} "
           f"{'env steps':>9s} {'eval lap s':>10s} {'end lap s':>9s} {'/opt':>5s} {'steps/s':>8s}  time shares")
@@ -150,7 +175,7 @@ def main() -> None:
             continue
         runs = [time_to_lap(track, seed, args.sensor, args.budget, args.min_time, args.precision,
                             json.loads(args.hyperparameters), args.console, args.workers, device,
-                            args.ray_address, car) for seed in args.seeds]
+                            args.ray_address, car, args.race, args.reward) for seed in args.seeds]
         lapped = [r for r in runs if r["lapped"]]
         med = lambda key: statistics.median(r[key] for r in lapped) if lapped else float("nan")
         laps = [r["eval_lap"] for r in lapped if r["eval_lap"]]

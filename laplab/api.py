@@ -100,14 +100,16 @@ class TrainingJob:
     def start(cls, name: str, files: ModelFiles, track: str = "classic_2018", max_time: str = "10m",
               workers: int = 1, store: str | None = None, ray_address: str | None = None,
               extra_args: tuple[str, ...] = (), log_folder: str | os.PathLike | None = None,
-              physics: str | None = None) -> "TrainingJob":
+              physics: str | None = None, race_type: "RaceType | dict | None" = None) -> "TrainingJob":
         """Start training model ``name`` in the background and return at once.
 
         ``track`` may be a list (``["reInvent2019_track", "Canada_Training@reversed"]``) for a
         multi-track job, one track per rollout worker in turn; ``workers`` > 1 runs rollout workers on
         Ray (a local one, or the cluster at ``ray_address``); ``store`` is ``s3://bucket/prefix`` or
         None for ``$LAPLAB_HOME/models``; ``physics`` (4, 5, 6 or classic) DeepRacer's car to train with
-        (None: the one the model metadata's ``version`` chooses; docs/physics.md).
+        (None: the one the model metadata's ``version`` chooses; docs/physics.md); ``race_type`` a
+        :class:`laplab.sim.race_type.RaceType` (or its dict, e.g. ``{"kind": "object_avoidance",
+        "objects": 3}``; None: a time trial; docs/race-types.md).
         """
         tracks = [track] if isinstance(track, str) else list(track)
         args = ["train", "--name", name, "--reward", str(files.reward_function),
@@ -121,6 +123,8 @@ class TrainingJob:
             args += ["--ray-address", ray_address]
         if physics:
             args += ["--physics", str(physics)]
+        if race_type is not None:
+            args += race_type_args(race_type)
         log = Path(log_folder or files.reward_function.parent) / f"{name}-training.log"
         with open(log, "wb") as out:
             process = subprocess.Popen(_laplab(*args, *extra_args), stdout=out, stderr=subprocess.STDOUT,
@@ -230,3 +234,28 @@ def export_for_car(name: str, out: str | os.PathLike, store: str | None = None, 
             raise UserError(f"exporting {name!r} for the car wrote no .tar.gz into {out}")
         return archives[-1]
     return out
+
+
+def race_type_args(race_type) -> list[str]:
+    """``laplab train`` options for a :class:`~laplab.sim.race_type.RaceType` or its dict (validated here)."""
+    from laplab.sim.race_type import RaceType, TIME_TRIAL
+    race = race_type if isinstance(race_type, RaceType) else RaceType.from_dict(dict(race_type), "race_type")
+    if race.kind == TIME_TRIAL:
+        return []
+    default = RaceType()
+    args = ["--race-type", race.kind]
+    names = {"objects": "--objects", "min_object_distance": "--min-object-distance", "object_type": "--object-type",
+             "bots": "--bots", "bot_speed": "--bot-speed", "bot_lane": "--bot-lane",
+             "min_bot_distance": "--min-bot-distance", "lane_change_min_s": "--lane-change-min",
+             "lane_change_max_s": "--lane-change-max", "lane_change_distance": "--lane-change-distance",
+             "collision_penalty": "--collision-penalty"}
+    for name, option in names.items():
+        if getattr(race, name) != getattr(default, name) and not (name == "objects" and race.object_positions):
+            args += [option, str(getattr(race, name))]
+    if race.object_positions:
+        args += ["--object-positions", ";".join(f"{d!r},{lane}" for d, lane in race.object_positions)]
+    for name, option in (("randomize_objects", "--randomize-objects"), ("randomize_bots", "--randomize-bots"),
+                         ("lane_change", "--lane-change")):
+        if getattr(race, name):
+            args.append(option)
+    return args

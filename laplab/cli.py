@@ -22,6 +22,7 @@ COMMAND_MODULES = (
     "laplab.commands.train",
     "laplab.commands.evaluate",
     "laplab.commands.leaderboard",
+    "laplab.commands.race",
     "laplab.commands.raceline",
     "laplab.commands.report",
     "laplab.commands.export",

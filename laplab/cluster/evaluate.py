@@ -34,7 +34,8 @@ class MultiTrackEvaluator:
         self.parts = []
         for number, (name, reverse) in enumerate(self.tracks):
             sim = Simulator(load_track(name), config.eval_episodes, vehicle,
-                            EpisodeParams(round_robin_advance=0.0, reverse=reverse))
+                            EpisodeParams(round_robin_advance=0.0, reverse=reverse), race=config.race_type,
+                            seed=config.seed + 1 + number)
             observations = ObservationBuilder(sim, config.spec, seed=config.seed + 1 + number)
             self.parts.append((track_label(name, reverse), EpisodeStepper(sim, config.spec.action_space, reward_fn),
                                observations))

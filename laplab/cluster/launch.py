@@ -59,7 +59,8 @@ def validate_reward_on_tracks(config, reward_fn) -> None:
     from laplab.track.registry import load_track
     actions = config.model_metadata.action_space.sweep_actions()
     for name, reverse in config.training_tracks()[1:]:
-        report = validate_reward_function(reward_fn, load_track(name, reverse=reverse), actions, isolate=True)
+        report = validate_reward_function(reward_fn, load_track(name, reverse=reverse), actions, isolate=True,
+                                          race=config.race_type)
         if not report.passed:
             raise report.error
 

@@ -104,7 +104,8 @@ class RolloutWorker:
         params = config.episode_params()
         params = replace(params, reverse=setup.reverse,
                          start_ndist=(params.start_ndist + params.round_robin_advance * setup.start_offset) % 1.0)
-        self.sim = Simulator(track, setup.num_cars, vehicle_preset(config.car), params)
+        self.sim = Simulator(track, setup.num_cars, vehicle_preset(config.car), params, race=config.race_type,
+                             seed=setup.seed)
         randomization = None
         if config.domain_randomization:
             from laplab.sensors.randomize import RandomizationParams

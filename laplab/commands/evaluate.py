@@ -121,6 +121,9 @@ def print_evaluation(console: Console, result, stamp: str, folder, store_url: st
              f"resets {resets}, {'stochastic' if s.stochastic else 'greedy'}")
     console.print(trials_table(result.trials, result.summary.optimal_lap_time, title=title))
     console.print(car_line(result.vehicle.name, trained_with=result.trained_car))
+    if result.race_type is not None:
+        from laplab.sim.race_type import RaceType
+        console.print(f"race: {RaceType.from_dict(result.race_type).summary()}")
     for line in summary_lines(result.summary):
         console.print(line)
     where = f"{store_url}{folder.evaluation_dir(stamp).name}/" if store_url else folder.evaluation_dir(stamp)

@@ -38,8 +38,9 @@ def run(args: argparse.Namespace) -> int:
         except EvaluationError as exc:
             raise UserError(str(exc)) from None
     if args.json:
-        print(json.dumps([{"track": track, "entries": [e.to_dict() for e in entries]}
-                          for track, entries in boards.items()], indent=2))
+        print(json.dumps([{"track": entries[0].track, "race": entries[0].race, "board": board,
+                           "entries": [e.to_dict() for e in entries]}
+                          for board, entries in boards.items()], indent=2))
         return 0
     console = Console(highlight=False, soft_wrap=True)
     if not boards:

@@ -81,6 +81,8 @@ def register(subparsers) -> None:
                             "with native bfloat16, else float32)")
     _add_scale_options(train)
     train.add_argument("--quiet", action="store_true", help="print only the summary")
+    from laplab.commands.race_options import add_race_options
+    add_race_options(train)
     train.add_argument("--trust-reward", action="store_true",
                        help="run the reward function of an imported model (--resume); recorded, asked once")
     add_limit_options(train)
@@ -246,7 +248,8 @@ def run_train(args: argparse.Namespace) -> int:
         kept = (("--reward", args.reward, "reward function"), ("--track", args.track, "tracks"),
                 ("--hyperparameters", args.hyperparameters, "hyperparameters"),
                 ("--model-metadata", args.model_metadata, "model_metadata.json"),
-                ("--physics", args.physics, "car (its physics)"))
+                ("--physics", args.physics, "car (its physics)"),
+                ("--race-type", args.race_type, "race type"))
         for option, value, what in kept:
             if value:  # refused, not checked and then ignored
                 raise UserError(f"a resumed job keeps its {what} (laplab.json records it); to train with another, "
@@ -256,6 +259,10 @@ def run_train(args: argparse.Namespace) -> int:
     else:
         values = {k: v for k, v in _overrides(args).items() if v is not None}
         values["domain_randomization"] = bool(args.domain_randomization)
+        from laplab.commands.race_options import race_type_from_args
+        race = race_type_from_args(args)
+        if race is not None:
+            values["race_type"] = race
         values["precision"] = args.precision
     workers, device = _scale(args)
     with _StopFlag() as stop, store_session(args, "train") as store:  # Ctrl-C while setting up: a clean stop

@@ -46,6 +46,7 @@ class CreateModel(CloneModel):
     classic; None: the one model_metadata's ``version`` chooses)."""
     seed: int = 0
     physics: str | None = Field(None, max_length=32)
+    race_type: dict | None = Field(None, description="laplab.sim.race_type.RaceType's fields (None: time trial)")
 
 
 class Resume(BaseModel):
@@ -98,10 +99,13 @@ def _input_errors() -> tuple[type[BaseException], ...]:
 def _field_of(exc: BaseException) -> str | None:
     """The request field an input error is about (laplab.errors.UserError carries it)."""
     field = getattr(exc, "field", None)
+    from laplab.sim.race_type import RaceTypeError
+    if isinstance(exc, RaceTypeError):  # its option (--objects, ...) is a key of the request's race_type
+        return "race_type"
     return field if field in _REQUEST_FIELDS else None
 
 
-_REQUEST_FIELDS = ("hyperparameters", "model_metadata", "name", "track", "physics")
+_REQUEST_FIELDS = ("hyperparameters", "model_metadata", "name", "track", "physics", "race_type")
 
 
 def own_model(request: Request, name: str, user: User) -> str:
@@ -135,7 +139,8 @@ def _check_train_inputs(values: dict):
     check_track_name(values.get("track"))
     try:
         config = replace(TrainConfig(), **{k: v for k, v in values.items() if v is not None})
-        load_track(config.track)
+        track = load_track(config.track)
+        config.race_type.check_track(track.length, track.name)
     except _input_errors() as exc:
         raise bad_request(str(exc), _field_of(exc) or ("max_time_s" if "max time" in str(exc) else None)) from None
     except (TypeError, ValueError) as exc:
@@ -256,6 +261,12 @@ async def create_model(body: CreateModel, request: Request, user: User = Depends
             values["vehicle"] = resolve_physics(body.physics, option="physics")
         except PhysicsError as exc:
             raise bad_request(str(exc), "physics") from None
+    if body.race_type:
+        from laplab.sim.race_type import RaceType, RaceTypeError
+        try:
+            values["race_type"] = RaceType.from_dict(body.race_type, "race_type").to_dict()
+        except (RaceTypeError, TypeError) as exc:
+            raise bad_request(str(exc), "race_type") from None
     config = _check_train_inputs(values)
     workers = _job_workers(request, body.workers, config.hyper().num_episodes_between_training)
     await _validate_and_claim(request, user, key, body, body.reward_function, body.track, body.model_metadata)

@@ -90,6 +90,7 @@ class ModelCatalog:
                    "action_space_type": metadata.get("action_space_type"),
                    "created": _iso(created), "best_lap_time": best, "iteration_count": len(iterations),
                    "max_time_s": config.get("max_time_s"), "error": folder.read_error(),
+                   "race_type": _race_summary(config.get("race_type")),
                    "evaluations": len(folder.list_evaluations()) if folder.exists() else 0,
                    "exists": folder.laplab_config.exists() or folder.model_metadata.exists()}
         self._cache[name] = (key, summary)
@@ -429,3 +430,12 @@ def threads_per_job(workers: int) -> int:
     learner and simulator (a camera job spends ~85 % of its time learning, ~1.8x faster on two threads
     than one)."""
     return max(1, (os.cpu_count() or 1) // max(1, int(workers)))
+
+
+def _race_summary(data) -> str:
+    """A model's race type in one line (``laplab.json``'s ``race_type``; none: a time trial)."""
+    from laplab.sim.race_type import RaceType, RaceTypeError
+    try:
+        return RaceType.from_dict(data).summary()
+    except (RaceTypeError, TypeError):
+        return "unreadable race type"

@@ -73,10 +73,13 @@ class ObservationBuilder:
         for sensor in self.sensors:
             box = spaces[sensor] if spaces is not None else self.single_space
             if sensor == STATE_SENSOR:
-                if sim.obs.shape[1] != box.shape[0]:
+                size = box.shape[0]
+                if sim.obs.shape[1] != size and not (sim.obs.shape[1] > size and not spec.objects_summary):
                     raise ValueError(f"the simulator's STATE vector has {sim.obs.shape[1]} values, the model's "
-                                     f"observation space {box.shape[0]}")
-                self._parts[sensor] = (box, lambda cars: sim.obs[cars])
+                                     f"observation space {size}")
+                # a model trained without objects (a time trial) drives among them without their summary
+                self._parts[sensor] = (box, (lambda cars: sim.obs[cars]) if sim.obs.shape[1] == size
+                                       else (lambda cars: sim.obs[cars, :size]))
             elif sensor in LIDAR_SENSORS:
                 self._parts[sensor] = (box, self._lidar_reader(sensor, spec.lidar_config))
             elif sensor in CAMERA_SENSORS:

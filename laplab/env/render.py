@@ -41,7 +41,8 @@ class FrameRenderer:
         poses = self.sim.poses()
         if self.view == "topdown":
             from laplab.sensors.render import draw_topdown
-            return draw_topdown(self.sim.track, poses)
+            obstacles = self.sim.obstacles if self.sim.obstacles.slots else None
+            return draw_topdown(self.sim.track, poses, obstacles=obstacles)
         from laplab.sensors.camera import HUMAN_CAMERA, render_camera
         if self._texture is None:
             from laplab.sensors.look import texture_for_track

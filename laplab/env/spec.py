@@ -30,6 +30,9 @@ class ModelSpec:
     - ``network``: the ``neural_network`` scheme name; ``algorithm``: ``clipped_ppo`` or ``sac``.
     - ``action_space``: discrete list or continuous ranges; ``lidar_config``: DISCRETIZED_SECTOR_LIDAR's.
     - ``version``: model_metadata.json's ``version`` (kept so :attr:`metadata` round-trips).
+    - ``objects_summary``: the race type puts objects on the track, so the ``STATE`` vector carries a
+      summary of the nearest ones (:func:`laplab.sim.collision.summary_size` more values); time trials
+      keep the STATE vector they always had.
     """
 
     sensors: tuple[str, ...] = (STATE_SENSOR,)
@@ -39,6 +42,7 @@ class ModelSpec:
     algorithm: str = "clipped_ppo"
     lidar_config: dict | None = None
     version: str = "5"
+    objects_summary: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.stack_size, bool) or not isinstance(self.stack_size, (int, np.integer)) \
@@ -63,22 +67,25 @@ class ModelSpec:
 
     @property
     def observation_space(self) -> gym.Space:
-        return observation_space(self.metadata, self.stack_size)
+        return observation_space(self.metadata, self.stack_size, self.objects_summary)
 
     @property
     def gym_action_space(self) -> gym.Space:
         return self.action_space.gym_space()
 
 
-def model_spec(metadata: ModelMetadata | None = None, stack_size: int = 1) -> ModelSpec:
-    """The one constructor of a :class:`ModelSpec` from a model's metadata and its ``stack_size``."""
+def model_spec(metadata: ModelMetadata | None = None, stack_size: int = 1, objects_summary: bool = False) -> ModelSpec:
+    """The one constructor of a :class:`ModelSpec` from a model's metadata, its ``stack_size`` and
+    whether its race type has objects (``objects_summary``)."""
     metadata = metadata if metadata is not None else ModelMetadata()
     return ModelSpec(sensors=metadata.sensors, stack_size=stack_size, network=metadata.neural_network,
                      action_space=metadata.action_space, algorithm=metadata.training_algorithm,
-                     lidar_config=metadata.lidar_config, version=metadata.version)
+                     lidar_config=metadata.lidar_config, version=metadata.version,
+                     objects_summary=bool(objects_summary))
 
 
-def sensor_space(sensor: str, stack_size: int = 1, lidar_config: dict | None = None) -> gym.spaces.Box:
+def sensor_space(sensor: str, stack_size: int = 1, lidar_config: dict | None = None,
+                 objects_summary: bool = False) -> gym.spaces.Box:
     """The observation Box of one sensor.
 
     ``STATE``: float32 (D,) (see :mod:`laplab.sensors.state_vector`); lidars: float32 (64,), (8,) or
@@ -86,7 +93,9 @@ def sensor_space(sensor: str, stack_size: int = 1, lidar_config: dict | None = N
     """
     if sensor == STATE_SENSOR:
         from laplab.sensors.state_vector import StateSensorParams
-        return gym.spaces.Box(-np.inf, np.inf, shape=(StateSensorParams().size,), dtype=np.float32)
+        from laplab.sim.collision import summary_size
+        size = StateSensorParams().size + (summary_size() if objects_summary else 0)
+        return gym.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
     if sensor in LIDAR_SENSORS:
         from laplab.sensors.lidar import DEFAULT_LIDAR, lidar_observation_shape
         shape = lidar_observation_shape(sensor, lidar_config, DEFAULT_LIDAR.num_beams)
@@ -100,11 +109,12 @@ def sensor_space(sensor: str, stack_size: int = 1, lidar_config: dict | None = N
     raise MetadataError(f"unknown sensor {sensor!r}")
 
 
-def observation_space(metadata: ModelMetadata | ModelSpec, stack_size: int = 1) -> gym.Space:
+def observation_space(metadata: ModelMetadata | ModelSpec, stack_size: int = 1,
+                      objects_summary: bool = False) -> gym.Space:
     """The observation space of a model: one sensor gives its Box, several a Dict keyed by sensor
     name (in model_metadata.json's order). Pure: no track, no Simulator. A :class:`ModelSpec`
     brings its own ``stack_size``."""
     if isinstance(metadata, ModelSpec):
-        metadata, stack_size = metadata.metadata, metadata.stack_size
-    boxes = {name: sensor_space(name, stack_size, metadata.lidar_config) for name in metadata.sensors}
+        metadata, stack_size, objects_summary = metadata.metadata, metadata.stack_size, metadata.objects_summary
+    boxes = {name: sensor_space(name, stack_size, metadata.lidar_config, objects_summary) for name in metadata.sensors}
     return next(iter(boxes.values())) if len(boxes) == 1 else gym.spaces.Dict(boxes)

@@ -47,14 +47,14 @@ def resolve_metadata(metadata: ModelMetadata | dict | str | os.PathLike | None) 
 
 
 def _setup_episodes(env, num_cars: int, track, reward_function, model_metadata, vehicle, episode, stack_size, seed,
-                    randomization=None, render_mode=None, render_view="topdown", render_car=0) -> None:
+                    randomization=None, render_mode=None, render_view="topdown", render_car=0, race=None) -> None:
     """What both envs hold: the model spec, track, simulator, action spec, reward function, stepper,
     observations and renderer."""
     check_render_options(render_mode, render_view)
     env.model_metadata = resolve_metadata(model_metadata)
-    env.model_spec = model_spec(env.model_metadata, stack_size)
+    env.model_spec = model_spec(env.model_metadata, stack_size, race is not None and race.has_objects)
     env.track = track if isinstance(track, Track) else load_track(track)
-    env.sim = Simulator(env.track, num_cars, vehicle, episode)
+    env.sim = Simulator(env.track, num_cars, vehicle, episode, race=race, seed=seed)
     env.action_spec = env.model_metadata.action_space
     env.reward_fn = resolve_reward_function(reward_function, env.action_spec.max_speed)
     env._stepper = EpisodeStepper(env.sim, env.action_spec, env.reward_fn)
@@ -98,6 +98,9 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
     ``progress`` (%), ``steps``, ``lap_time`` (s, NaN unless the lap completed this step) and, when a
     reward function runs, ``params`` (the list of params dicts it saw, None for idle cars).
 
+    Race type: ``race`` (a :class:`laplab.sim.race_type.RaceType`; None: time trial) puts boxes or bot
+    cars on the track (``crashed`` terminates; the STATE vector gains the nearest objects' summary).
+
     Rendering: ``render_mode="rgb_array"`` makes :meth:`render` return one (H, W, 3) uint8 picture:
     ``render_view="topdown"`` (default) every car on the track from above, ``"camera"`` the front
     camera of car ``render_car`` in colour (:mod:`laplab.env.render`); ``metadata["render_fps"]`` 15.
@@ -109,9 +112,9 @@ class TimeTrialVectorEnv(gym.vector.VectorEnv):
                  model_metadata: ModelMetadata | dict | str | None = None, vehicle: VehicleParams = DEEPRACER,
                  episode: EpisodeParams = EpisodeParams(), keep_params: bool = True, stack_size: int = 1,
                  seed: int | None = None, randomization=None, render_mode: str | None = None,
-                 render_view: str = "topdown", render_car: int = 0):
+                 render_view: str = "topdown", render_car: int = 0, race=None):
         _setup_episodes(self, num_envs, track, reward_function, model_metadata, vehicle, episode, stack_size, seed,
-                        randomization, render_mode, render_view, render_car)
+                        randomization, render_mode, render_view, render_car, race)
         self.num_envs = int(num_envs)
         self.keep_params = keep_params
         self.single_observation_space = self._observations.single_space

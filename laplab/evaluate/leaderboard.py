@@ -4,7 +4,9 @@ Ranking (the DeepRacer league's order): average of three consecutive laps (ascen
 without three consecutive completed laps after those with), then best lap (ascending; none last),
 then average completion (descending), then off-track count (ascending). Each model is represented
 by its best evaluation on the track under that same order. Evaluations without laplab's
-``summary.json`` (made by other tools) carry no track and are not ranked.
+``summary.json`` (made by other tools) carry no track and are not ranked. Race types are ranked
+apart: a board is one track and one race (``"track"`` for time trials, ``"track [object avoidance:
+3 boxes, evenly spaced]"`` for the others, from the evaluation's ``race_type``).
 """
 
 from __future__ import annotations
@@ -28,6 +30,12 @@ class EvaluationRecord:
     track: str
     checkpoint: str | None
     summary: EvaluationSummary
+    race: str = "time trial"  # RaceType.summary() of the evaluation's race
+
+    @property
+    def board(self) -> str:
+        """The leaderboard this evaluation belongs to: its track, and its race unless a time trial."""
+        return self.track if self.race == "time trial" else f"{self.track} [{self.race}]"
 
 
 @dataclass(frozen=True)
@@ -44,6 +52,7 @@ class LeaderboardEntry:
     completion: float
     off_track_count: int
     gap_to_optimal: float | None
+    race: str = "time trial"
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -67,8 +76,17 @@ def load_records(root: str | os.PathLike | None = None) -> list[EvaluationRecord
                 summary = EvaluationSummary.from_dict(document["summary"], source)
             except (KeyError, TypeError, ValueError) as exc:
                 raise EvaluationError(f"{source}: unreadable evaluation summary ({exc})") from None
-            records.append(EvaluationRecord(name, stamp, str(track), document.get("checkpoint"), summary))
+            records.append(EvaluationRecord(name, stamp, str(track), document.get("checkpoint"), summary,
+                                            _race_of(document.get("race_type"), source)))
     return records
+
+
+def _race_of(data, source: str) -> str:
+    from laplab.sim.race_type import RaceType, RaceTypeError
+    try:
+        return RaceType.from_dict(data, source).summary()
+    except (RaceTypeError, TypeError) as exc:
+        raise EvaluationError(f"{source}: unreadable race_type ({exc})") from None
 
 
 def _sort_key(record: EvaluationRecord) -> tuple:
@@ -79,13 +97,13 @@ def _sort_key(record: EvaluationRecord) -> tuple:
 
 
 def rank(records: list[EvaluationRecord], track: str | None = None) -> dict[str, list[LeaderboardEntry]]:
-    """Leaderboards per track name (only ``track`` when given): each model's best evaluation there,
-    ranked; tracks in name order."""
+    """Leaderboards per track and race (:attr:`EvaluationRecord.board`; only track ``track`` when
+    given): each model's best evaluation there, ranked; boards in name order."""
     by_track: dict[str, dict[str, EvaluationRecord]] = {}
     for record in records:
         if track is not None and record.track != track:
             continue
-        models = by_track.setdefault(record.track, {})
+        models = by_track.setdefault(record.board, {})
         best = models.get(record.model)
         if best is None or _sort_key(record) < _sort_key(best):
             models[record.model] = record
@@ -104,7 +122,7 @@ def _entry(position: int, record: EvaluationRecord) -> LeaderboardEntry:
     return LeaderboardEntry(rank=position, model=record.model, stamp=record.stamp, track=record.track,
                             checkpoint=record.checkpoint, average_3=s.average_3, best_lap=s.best_lap,
                             completion=s.average_completion, off_track_count=s.off_track_count,
-                            gap_to_optimal=gap)
+                            gap_to_optimal=gap, race=record.race)
 
 
 def _optimal_for(track_name: str) -> float | None:

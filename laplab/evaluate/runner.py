@@ -7,7 +7,8 @@ Rules (reference doc section 8; ``docs/evaluation.md``):
   car back at the progress of the previous step, its reference point in the nearer quarter-width
   lane, facing along the track, at rest, and holds it for the penalty (``crash_penalty`` for a
   crash, ``off_track_penalty`` for the others): the trial's clock runs on while the car stands.
-  Without resets left the incident ends the trial with that status.
+  Without resets left the incident ends the trial with that status. Near a box (object avoidance)
+  the car is put 1 m behind it in the other lane, as DeepRacer does; bots drive on while it stands.
 - A trial still running when its clock reaches ``max_trial_time`` ends as ``time_up``.
 - Continuous mode: one car drives the trials as consecutive laps; a lap's time runs from crossing
   the line to crossing it again. After a trial that did not finish, the next starts again at rest
@@ -39,6 +40,7 @@ for _code, _kind in ((OFF_TRACK, "off_track"), (REVERSED, "reversed"), (IMMOBILI
     _INCIDENT_INDEX[_code] = INCIDENTS.index(_kind)
 _ROW_STATUS = np.array(STATUS_NAMES + ("pause",))
 _PAUSE = len(STATUS_NAMES)
+OBSTACLES_KEY = "_obstacles"
 
 
 class TrialRun(NamedTuple):
@@ -48,6 +50,7 @@ class TrialRun(NamedTuple):
     trials: tuple[TrialResult, ...]
     trace: dict[str, np.ndarray]
     decisions: int
+    obstacles: np.ndarray | None = None  # (rows, slots, 7) the Obstacles fields at each trace row
 
 
 def reset_poses(track: Track, reference_offset: float, arc: np.ndarray, near: np.ndarray) -> np.ndarray:
@@ -68,14 +71,45 @@ def reset_poses(track: Track, reference_offset: float, arc: np.ndarray, near: np
     return pose_for_reference(np.where(use_left[:, None], left, right), heading, reference_offset)
 
 
+RESET_BEHIND = 1.0  # m: simapp's DEFAULT_RESET_BEHIND_DIST and CLOSEST_OBJ_GAP
+
+
+def behind_objects(sim: Simulator, cars: np.ndarray, travel: np.ndarray, near: np.ndarray):
+    """DeepRacer's reset near a static object (simapp ``_get_car_reset_model_state``): a car whose
+    reset point lies within 1 m (along the track) of a box is put 1 m behind it, in the other lane.
+    Returns the new ``travel`` (K,) and the points (K, 2) that choose the lane."""
+    from laplab.sim.obstacles import BOX
+    from laplab.sim.simulator import wrapped_travel
+    field = sim.field
+    if field is None or not (sim.obstacles.kind[cars] == BOX).any():
+        return travel, near
+    travel, near = travel.copy(), near.copy()
+    length = sim.track.length
+    st, ob = sim.state, sim.obstacles
+    gap = wrapped_travel(field.arc[cars] - (st.start_arc[cars] + travel)[:, None], length)
+    gap = np.where(ob.kind[cars] == BOX, gap, np.inf)
+    nearest = np.abs(gap).argmin(axis=1)
+    rows = np.arange(cars.size)
+    close = np.abs(gap[rows, nearest]) < RESET_BEHIND
+    if close.any():
+        travel[close] += gap[rows, nearest][close] - RESET_BEHIND
+        arc = st.start_arc[cars[close]] + travel[close]
+        centre = sim.track.point_at(arc)
+        box = np.column_stack([ob.x[cars[close], nearest[close]], ob.y[cars[close], nearest[close]]])
+        near[close] = 2.0 * centre - box  # the lane away from the box
+    return travel, near
+
+
 def put_back(sim: Simulator, cars: np.ndarray, travel: np.ndarray) -> None:
     """Put ``cars`` back on the track at the distances ``travel`` (K,) m from their start (DeepRacer's
-    reset after an incident): quarter-width lane nearer to where each car is, at rest, counters cleared.
+    reset after an incident): quarter-width lane nearer to where each car is, at rest, counters cleared;
+    near a box, 1 m behind it in the other lane (:func:`behind_objects`).
     """
     st = sim.state
     track = sim.track
-    arc = st.start_arc[cars] + travel
     near = np.column_stack([st.ref_x[cars], st.ref_y[cars]])
+    travel, near = behind_objects(sim, cars, np.asarray(travel, dtype=np.float64), near)
+    arc = st.start_arc[cars] + travel
     sim.place(cars, reset_poses(track, sim.vehicle.reference_offset, arc, near))
     stranded = cars[st.status[cars] != IN_PROGRESS]
     if stranded.size:  # a lane off the road (a freak border): use the centre line
@@ -93,9 +127,12 @@ def _rows(sim: Simulator, cars: np.ndarray, trials: np.ndarray, clock: np.ndarra
     """Simtrace columns of K rows, one per car of ``cars`` (its current state); ``status`` holds row
     status indices into ``_ROW_STATUS``; ``clock`` is trial time, shifted onto the evaluation clock later."""
     k = cars.size
-    return simtrace_rows(sim, cars, action, np.zeros(k), episode=trials, steps=steps, tstamp=clock, done=done,
+    rows = simtrace_rows(sim, cars, action, np.zeros(k), episode=trials, steps=steps, tstamp=clock, done=done,
                          episode_status=status, pause_duration=penalty.astype(np.float64),
                          obstacle_crash_counter=crashes.astype(np.int64), wall_clock=np.full(k, wall))
+    if sim.field is not None:  # each row's obstacles (K, slots, 6), for videos; not a simtrace column
+        rows[OBSTACLES_KEY] = np.stack(list(sim.obstacles.rows(cars)), axis=-1)
+    return rows
 
 
 def run_trials(stepper: EpisodeStepper, observe: Callable[[np.ndarray], Any], act: Callable[[Any], np.ndarray],
@@ -151,6 +188,7 @@ def run_trials(stepper: EpisodeStepper, observe: Callable[[np.ndarray], Any], ac
             cars, owners = active[reset], trial[reset]
             penalty = np.where(code[reset] == CRASHED, settings.crash_penalty, settings.off_track_penalty)
             put_back(sim, cars, prev_travel[cars])
+            sim.let_obstacles_drive(cars, penalty)  # bots drive on while the car stands
             resets[owners] += 1
             penalties[owners] += penalty
             resets_left[cars] -= resets_left[cars] > 0
@@ -217,5 +255,5 @@ def _assemble(finished, counts, resets, penalties, parts, decisions) -> TrialRun
     trace = {name: values[order] for name, values in trace.items()}
     trace["tstamp"] = trace["tstamp"] + starts[trace["episode"]]
     trace["episode_status"] = _ROW_STATUS[trace["episode_status"]]
-    return TrialRun(trials, trace, decisions)
+    return TrialRun(trials, trace, decisions, trace.pop(OBSTACLES_KEY, None))
 

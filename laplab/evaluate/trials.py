@@ -125,6 +125,8 @@ class EvaluationResult:
     checkpoint: str | None = None
     video: str | None = None
     trained_car: str | None = None
+    race_type: dict | None = None  # laplab.sim.race_type.RaceType.to_dict(); None: a time trial
+    obstacles: np.ndarray | None = field(default=None, repr=False)  # (rows, slots, 7) per trace row
 
     def to_dict(self) -> dict[str, Any]:
         """The ``summary.json`` document."""
@@ -134,7 +136,7 @@ class EvaluationResult:
             "settings": self.settings.to_dict(), "trials": [t.to_dict() for t in self.trials],
             "summary": self.summary.to_dict(), "video": self.video,
             "action_space_type": self.metadata.action_space.kind, "sensors": list(self.metadata.sensors),
-            "car": self.vehicle.name, "trained_car": self.trained_car, "decisions": self.decisions, "wall_seconds": self.wall_seconds,
+            "car": self.vehicle.name, "trained_car": self.trained_car, "race_type": self.race_type, "decisions": self.decisions, "wall_seconds": self.wall_seconds,
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         }
 
@@ -170,7 +172,7 @@ def _actor(policy: Any, stochastic: bool) -> Callable[[Any], np.ndarray]:
 def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = EvaluationSettings(), *,
                     spec: ModelSpec | None = None, vehicle: VehicleParams | None = None,
                     optimal_lap_time: float | None = None,
-                    standing_start_lap_time: float | None = None) -> EvaluationResult:
+                    standing_start_lap_time: float | None = None, race=None) -> EvaluationResult:
     """Run ``settings.trials`` trials of ``policy`` on ``track`` in one batched Simulator.
 
     ``policy``: a :class:`laplab.train.policy.ModelPolicy` (greedy unless ``settings.stochastic``) or
@@ -179,7 +181,9 @@ def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = Ev
     (scripted drivers that read the car's state). ``spec`` (sensors, frame stack, action space) defaults
     to the policy's, else laplab's default model; ``vehicle`` to the policy's training car, else DeepRacer's.
     ``optimal_lap_time`` (s) fills the summary's gap to optimal, ``standing_start_lap_time`` (s) its
-    yardstick for laps from rest. Deterministic for a given seed.
+    yardstick for laps from rest. ``race`` (a :class:`laplab.sim.race_type.RaceType`) puts its objects
+    on the track, default the policy's training race type (time trial without one). Deterministic for
+    a given seed.
     """
     started = time.perf_counter()
     spec = spec or getattr(policy, "spec", None) or model_spec()
@@ -191,7 +195,9 @@ def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = Ev
         vehicle = vehicle_preset(config.car) if config is not None else DEEPRACER
     slots = 1 if settings.continuous else settings.trials
     episode = EpisodeParams(round_robin_advance=0.0, spread_starts=False, max_steps=2**62)
-    sim = Simulator(track, slots, vehicle, episode)
+    if race is None:
+        race = getattr(getattr(policy, "config", None), "race_type", None)
+    sim = Simulator(track, slots, vehicle, episode, race=race, seed=settings.seed)
     observations = ObservationBuilder(sim, spec, seed=settings.seed)
     act = _actor(policy, settings.stochastic)
     if hasattr(policy, "bind"):
@@ -201,7 +207,9 @@ def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = Ev
     return EvaluationResult(settings=settings, track=track, vehicle=vehicle, metadata=spec.metadata, trials=run.trials,
                             summary=summarize(run.trials, optimal_lap_time, standing_start_lap_time), trace=run.trace,
                             decisions=run.decisions, wall_seconds=time.perf_counter() - started,
-                            model=getattr(policy, "name", None), checkpoint=getattr(policy, "checkpoint", None))
+                            model=getattr(policy, "name", None), checkpoint=getattr(policy, "checkpoint", None),
+                            race_type=sim.race.to_dict() if sim.race.has_objects else None,
+                            obstacles=run.obstacles)
 
 
 def save_evaluation(folder: ModelFolder, result: EvaluationResult) -> tuple[str, EvaluationResult]:
@@ -244,6 +252,11 @@ def evaluate_model(name: str, settings: EvaluationSettings = EvaluationSettings(
     config = policy.config
     track = load_track(settings.track) if settings.track else load_track(config.track, reverse=config.reverse)
     vehicle = vehicle_preset(settings.physics or config.car)
+    race = config.race_type
+    if race.has_objects:
+        race.check_track(track.length, track.name)
+        if settings.crash_penalty == EvaluationSettings.crash_penalty:  # the race's own, unless asked otherwise
+            settings = replace(settings, crash_penalty=race.collision_penalty)
     try:
         optimal = optimal_lap_time(track, vehicle)
         standing = standing_start_optimal_lap_time(track, vehicle)

@@ -41,6 +41,17 @@ def trial_poses(result, trial: int = 0) -> tuple[np.ndarray, dict[str, np.ndarra
     return poses, columns
 
 
+def trial_obstacles(result, trial: int, count: int):
+    """A function of a frame index giving that row's :class:`~laplab.sim.obstacles.Obstacles` (1, K) of
+    trial ``trial``; None for an evaluation without obstacles."""
+    if getattr(result, "obstacles", None) is None:
+        return None
+    from laplab.sim.obstacles import Obstacles
+    rows = result.obstacles[result.trace["episode"] == trial][:count]
+    return lambda t: Obstacles(*(rows[t:t + 1, :, j] if j < 6 else rows[t:t + 1, :, j].astype(np.int64)
+                                 for j in range(7)))
+
+
 def write_trial_video(path: str | Path, result, trial: int = 0, camera: bool = True) -> Path:
     """Write trial ``trial`` of an :class:`~laplab.evaluate.trials.EvaluationResult` to ``path``
     (.mp4, or .gif without imageio-ffmpeg); returns the path written. At most MAX_VIDEO_FRAMES frames."""
@@ -54,7 +65,9 @@ def write_trial_video(path: str | Path, result, trial: int = 0, camera: bool = T
         poses, columns = poses[:MAX_VIDEO_FRAMES], {k: v[:MAX_VIDEO_FRAMES] for k, v in columns.items()}
     track = result.track
     path_xy = poses[:, :2]
-    topdown = _TopdownFrames(lambda t: draw_topdown(track, poses[t:t + 1], paths=[path_xy[: t + 1]]), len(poses))
+    obstacles = trial_obstacles(result, trial, len(poses))
+    topdown = _TopdownFrames(lambda t: draw_topdown(track, poses[t:t + 1], paths=[path_xy[: t + 1]],
+                                                    obstacles=None if obstacles is None else obstacles(t)), len(poses))
     frames = None
     if camera:
         from laplab.sensors.camera import FRONT_FACING_CAMERA, render_camera

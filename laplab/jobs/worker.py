@@ -128,7 +128,7 @@ def _train(files: JobFiles, spec: dict) -> None:
     else:
         reward_path = str(files.folder / "reward_function.py") if (files.folder / "reward_function.py").exists() else None
         values = {k: params[k] for k in ("track", "model_metadata", "hyperparameters", "max_time_s", "max_episodes", "seed",
-                                         "vehicle")
+                                         "vehicle", "race_type")
                   if params.get(k) is not None}
         if reward_path:
             values["reward_path"] = reward_path

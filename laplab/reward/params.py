@@ -29,7 +29,8 @@ PARAMS_KEYS = (
 
 
 class ParamsBuilder:
-    """Builds params dicts for the cars of one :class:`Simulator` (no objects on the track)."""
+    """Builds params dicts for the cars of one :class:`Simulator` (the ``objects_*`` keys from its
+    obstacles when its race type has any: :mod:`laplab.reward.objects`)."""
 
     def __init__(self, sim: Simulator):
         self.sim = sim
@@ -53,7 +54,7 @@ class ParamsBuilder:
             (st.direction[idx] == 1).tolist(), st.arc[idx].tolist(),
         )
         length, waypoints = self._length, self._waypoints
-        return [
+        dicts = [
             {
                 "all_wheels_on_track": on, "x": x, "y": y, "heading": hd, "distance_from_center": dfc,
                 "is_left_of_center": left, "progress": prog, "steps": steps, "speed": speed,
@@ -66,6 +67,11 @@ class ParamsBuilder:
             }
             for on, x, y, hd, dfc, left, prog, steps, speed, steer, w, sg, off, crash, rev, proj in zip(*columns)
         ]
+        if self.sim.field is not None:
+            from laplab.reward.objects import object_params
+            for params, objects in zip(dicts, object_params(self.sim, idx)):
+                params.update(objects)
+        return dicts
 
 
 @contextmanager

@@ -45,17 +45,18 @@ class ValidationReport:
         return self.error is None
 
 
-def sweep_params(track: Track, actions: np.ndarray | None = None) -> list[dict]:
+def sweep_params(track: Track, actions: np.ndarray | None = None, race=None) -> list[dict]:
     """Params dicts of the validation sweep on ``track`` (both directions, every action).
 
     ``actions``: (K, 2) of (steering deg, speed m/s), e.g. ``ActionSpace.sweep_actions()``; default:
-    laplab's default action space."""
+    laplab's default action space. ``race``: the job's :class:`~laplab.sim.race_type.RaceType` (its
+    objects are on the track, so the ``objects_*`` keys are filled as in training)."""
     actions = np.asarray(DEFAULT_SWEEP_ACTIONS if actions is None else actions, dtype=np.float64).reshape(-1, 2)
     steer_deg, speed = actions[:, 0], actions[:, 1]
     combos = [(f, lat, hd, d) for d in (0, 1) for f in LAP_FRACTIONS for lat in LATERAL_FRACTIONS
               for hd in HEADING_OFFSETS_DEG]
     n_states = len(combos)
-    sim = Simulator(track, n_states * len(steer_deg), episode=EpisodeParams(round_robin_advance=0.0))
+    sim = Simulator(track, n_states * len(steer_deg), episode=EpisodeParams(round_robin_advance=0.0), race=race, seed=0)
     sim.reset(ndist=0.0, direction=np.repeat([c[3] for c in combos], len(steer_deg)))
     poses = np.empty((sim.num_cars, 3))
     row = 0
@@ -81,13 +82,14 @@ def sweep_params(track: Track, actions: np.ndarray | None = None) -> list[dict]:
 
 
 def validate_reward_function(reward_fn: RewardFunction, track: Track, actions: np.ndarray | None = None,
-                             timeout_s: float = 2.0, isolate: bool = False) -> ValidationReport:
+                             timeout_s: float = 2.0, isolate: bool = False, race=None) -> ValidationReport:
     """Call ``reward_fn`` on every state of the sweep (``actions`` as in :func:`sweep_params`); stop at
     the first failure. ``isolate``: make the calls in a child process that is killed if it stops
     answering (:mod:`laplab.reward.check_process`: what the commands do before a job), so that no
-    reward function can hang, kill or cripple the caller."""
+    reward function can hang, kill or cripple the caller. ``race``: the job's race type (its objects
+    fill the ``objects_*`` keys, see :func:`sweep_params`)."""
     from laplab.reward.check_process import call_all, can_isolate
-    params_list = sweep_params(track, actions)
+    params_list = sweep_params(track, actions, race)
     if isolate and can_isolate() and isinstance(reward_fn, RewardFunction):
         values, error = call_all(reward_fn, params_list, timeout_s)
         arr = np.array(values) if values else np.zeros(1)

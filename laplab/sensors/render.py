@@ -161,14 +161,18 @@ class TopdownRenderer:
 
     def draw(self, poses: np.ndarray | None = None, paths: list[np.ndarray] | None = None,
              camera_fov: float | None = 1.13, lidar_ranges: np.ndarray | None = None,
-             lidar_params: LidarParams = DEFAULT_LIDAR) -> np.ndarray:
+             lidar_params: LidarParams = DEFAULT_LIDAR, obstacles=None) -> np.ndarray:
         """Frame with K cars at ``poses`` (K, 3) [x, y, yaw], their ``paths`` (list of (M, 2) m),
         camera wedges of ``camera_fov`` rad (None: none) and optional ``lidar_ranges`` (K, B) m beams.
-        Car i takes colour ``car_colors[i % len]``. Returns (H, W, 3) uint8.
+        Car i takes colour ``car_colors[i % len]``. ``obstacles`` (a
+        :class:`laplab.sim.obstacles.Obstacles` of any shape) draws boxes brown, bot cars grey-blue and
+        other models' cars violet, as their footprints. Returns (H, W, 3) uint8.
         """
         p = self.params
         image = self.background.copy()
         draw = ImageDraw.Draw(image, "RGBA")
+        if obstacles is not None:
+            self._draw_obstacles(draw, obstacles)
         poses = np.zeros((0, 3)) if poses is None else np.asarray(poses, dtype=np.float64).reshape(-1, 3)
         colors = [p.car_colors[i % len(p.car_colors)] for i in range(max(len(poses), len(paths or ())))]
         for i, path in enumerate(paths or ()):
@@ -191,6 +195,18 @@ class TopdownRenderer:
             nose = np.array([quad[1], quad[2], 0.75 * quad[2] + 0.25 * quad[3], 0.75 * quad[1] + 0.25 * quad[0]])
             draw.polygon([tuple(v) for v in nose], fill=(25, 25, 25))
         return np.asarray(image)
+
+    def _draw_obstacles(self, draw, obstacles) -> None:
+        from laplab.sim.obstacles import EMPTY
+        colours = {1: (123, 97, 79), 2: (90, 110, 140), 3: (140, 80, 170)}  # box #7b614f, bot, model car
+        x, y, yaw, hl, hw, kind = (np.asarray(f).reshape(-1) for f in (
+            obstacles.x, obstacles.y, obstacles.yaw, obstacles.half_length, obstacles.half_width, obstacles.kind))
+        for i in np.flatnonzero(kind != EMPTY):
+            c, s = math.cos(yaw[i]), math.sin(yaw[i])
+            local = np.array([[-hl[i], -hw[i]], [hl[i], -hw[i]], [hl[i], hw[i]], [-hl[i], hw[i]]])
+            world = np.stack([x[i] + c * local[:, 0] - s * local[:, 1], y[i] + s * local[:, 0] + c * local[:, 1]], axis=1)
+            draw.polygon([tuple(v) for v in self.to_pixels(world)], fill=colours.get(int(kind[i]), (120, 120, 120)),
+                         outline=(20, 20, 20))
 
     def _draw_lidar(self, draw, poses, ranges, lidar: LidarParams) -> None:
         angles = lidar.beam_angles
@@ -219,9 +235,11 @@ def renderer_for(track, params: RenderParams = DEFAULT_RENDER) -> TopdownRendere
 
 def draw_topdown(track, poses: np.ndarray | None = None, paths: list[np.ndarray] | None = None,
                  camera_fov: float | None = 1.13, params: RenderParams = DEFAULT_RENDER,
-                 lidar_ranges: np.ndarray | None = None, lidar_params: LidarParams = DEFAULT_LIDAR) -> np.ndarray:
-    """Top-down RGB image (H, W, 3) uint8 of a Track or (N, 6) route with cars; see TopdownRenderer.draw."""
-    return renderer_for(track, params).draw(poses, paths, camera_fov, lidar_ranges, lidar_params)
+                 lidar_ranges: np.ndarray | None = None, lidar_params: LidarParams = DEFAULT_LIDAR,
+                 obstacles=None) -> np.ndarray:
+    """Top-down RGB image (H, W, 3) uint8 of a Track or (N, 6) route with cars (and ``obstacles``);
+    see TopdownRenderer.draw."""
+    return renderer_for(track, params).draw(poses, paths, camera_fov, lidar_ranges, lidar_params, obstacles)
 
 
 def draw_lidar_polar(ranges: np.ndarray, angles: np.ndarray | None = None, size: int = 240,

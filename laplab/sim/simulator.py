@@ -8,6 +8,9 @@ import numpy as np
 
 from laplab.sensors.state_vector import StateSensorParams
 from laplab.sim.kernel import empty_obs, observe_kernel, step_kernel
+from laplab.sim.collision import summary_size
+from laplab.sim.obstacles import Obstacles, no_obstacles
+from laplab.sim.race_type import HEAD_TO_MODEL, RaceType
 from laplab.sim.state import IN_PROGRESS, EpisodeParams, SimState, empty_state
 from laplab.track.geometry import Track
 from laplab.track.params_geometry import ParamsGeometry, params_geometry
@@ -21,18 +24,34 @@ class Simulator:
 
     ``state`` (a :class:`SimState` of (N,) arrays) and ``obs`` ((N, D) float32 STATE observations, D = 0
     without the STATE sensor) are preallocated and updated in place by :meth:`step` and :meth:`reset`.
+
+    ``race`` (a :class:`~laplab.sim.race_type.RaceType`; None: time trial) puts boxes, bot cars or the
+    other cars of a head-to-model group on the track: :attr:`obstacles` holds them, (N, K) per car,
+    placed at every reset and moved every step; a car whose body hits one ends its episode
+    ``crashed``; the STATE vector gains a summary of the nearest ones
+    (:func:`laplab.sim.collision.write_summary`). ``seed`` seeds their random placement and lane
+    changes. Head-to-model: cars ``g * group .. (g + 1) * group - 1`` race each other.
     """
 
     def __init__(self, track: Track, num_cars: int = 1, vehicle: VehicleParams = DEEPRACER,
-                 episode: EpisodeParams = EpisodeParams(), state_sensor: StateSensorParams | None = StateSensorParams()):
+                 episode: EpisodeParams = EpisodeParams(), state_sensor: StateSensorParams | None = StateSensorParams(),
+                 race: RaceType | None = None, seed: int | None = None):
         if num_cars < 1:
             raise ValueError(f"num_cars must be >= 1, got {num_cars}")
         self.num_cars = int(num_cars)
         self.vehicle, self.episode, self.state_sensor = vehicle, episode, state_sensor
+        self.race = race if race is not None else RaceType()
         self.tracks: tuple[Track, Track] = (track, track.reversed())
         self.arrays: tuple[TrackArrays, TrackArrays] = tuple(track_arrays(t) for t in self.tracks)
         self.state: SimState = empty_state(self.num_cars)
-        self.obs = empty_obs(self.num_cars, state_sensor.size if state_sensor else 0)
+        self.field = self._obstacle_field(seed) if self.race.has_objects else None
+        self._summary_at = state_sensor.size if state_sensor else 0
+        extra = summary_size() if (self.field is not None and state_sensor) else 0
+        self.obs = empty_obs(self.num_cars, (state_sensor.size if state_sensor else 0) + extra)
+        self.last_hit = np.full(self.num_cars, -1, dtype=np.int64)  # slot each car hit on its last step
+        # cars that collide with nothing and are no obstacle to others (DeepRacer's blinking car serving a penalty)
+        self.ghost = np.zeros(self.num_cars, dtype=np.bool_)
+        self._no_obstacles = no_obstacles(self.num_cars)
         self._look = (state_sensor.lookahead_count, state_sensor.spacing) if state_sensor else (1, 1.0)
         self._vc = dynamics_constants(vehicle) + (float(vehicle.dt), float(vehicle.reference_offset),
                                                   0.5 * vehicle.wheel_track, float(vehicle.max_speed),
@@ -41,6 +60,21 @@ class Simulator:
                        float(episode.immobilized_distance))
         self._episodes_done = np.zeros(self.num_cars, dtype=np.int64)
         self.state.status[:] = -1  # not started
+
+    def _obstacle_field(self, seed):
+        from laplab.sim.race_field import ObstacleField
+        race, v = self.race, self.vehicle
+        self.race.check_track(self.tracks[0].length, self.tracks[0].name)
+        if race.kind == HEAD_TO_MODEL and self.num_cars % (race.slots + 1):
+            raise ValueError(f"head-to-model races of {race.slots + 1} cars need a multiple of {race.slots + 1} cars, "
+                             f"got {self.num_cars}")
+        body = (0.5 * v.body_length - v.rear_overhang, 0.5 * v.body_length, 0.5 * v.body_width)
+        return ObstacleField(race, self.arrays, tuple(t.is_ccw for t in self.tracks), self.num_cars, v.dt, body, seed)
+
+    @property
+    def obstacles(self) -> Obstacles:
+        """What is on the track besides each car: (N, K) slots, world frame, current (K = 0 in a time trial)."""
+        return self.field.obstacles if self.field is not None else self._no_obstacles
 
     @property
     def track(self) -> Track:
@@ -102,13 +136,53 @@ class Simulator:
                 self._place(sel, d, ndist[direction == d])
         self._episodes_done[cars] += 1
         st.episode[cars] += 1
+        if self.field is not None:
+            self.field.reset(cars, st.direction[cars])
+            self._start_beside_obstacles(cars)
+            self.field.update(st, np.arange(self.num_cars) if self.race.kind == HEAD_TO_MODEL else cars, self.ghost)
         self._observe(cars)
+
+    def _start_beside_obstacles(self, cars: np.ndarray) -> None:
+        """DeepRacer's start rule: a car whose start has an obstacle within 1 m (along the track) starts
+        in the other lane; head-to-model cars start side by side, inner and outer lane in turn."""
+        from laplab.sim.race_field import LANE, lane_poses
+        st, field = self.state, self.field
+        if self.race.kind == HEAD_TO_MODEL:
+            frac = np.where((cars % field.group) % 2 == 0, LANE, -LANE) * field.inner_sign[st.direction[cars]]
+        else:
+            length = self.track.length
+            gap = np.abs(wrapped_travel(field.arc[cars] - st.start_arc[cars, None], length))
+            near = gap.argmin(axis=1)
+            blocked = gap[np.arange(cars.size), near] < 1.0
+            cars = cars[blocked]
+            lane = field.frac[cars, near[blocked]]
+            frac = np.where(lane > 0, -LANE, LANE)
+        for d in (0, 1):
+            sel = st.direction[cars] == d
+            if not sel.any():
+                continue
+            sub, geo = cars[sel], self.arrays[d]
+            poses = lane_poses(st.start_arc[sub], frac[sel], geo.centerline, geo.arc_length, geo.left_width,
+                               geo.right_width)
+            poses[:, 2] = st.yaw[sub]
+            st.x[sub], st.y[sub] = poses[:, 0], poses[:, 1]
+            proj = self._project_reference(sub, d, poses)
+            st.travel[sub] = wrapped_travel(proj.arc_length - st.start_arc[sub], self.tracks[d].length)
 
     def _observe(self, cars: np.ndarray) -> None:
         """Recompute the STATE observation rows of ``cars`` from their current state."""
         mask = np.zeros(self.num_cars, dtype=np.bool_)
         mask[cars] = True
         observe_kernel(self.state, self.arrays[0], self.arrays[1], self._vc, self.obs, *self._look, mask)
+        self._summarise(np.asarray(cars, dtype=np.int64))
+
+    def _summarise(self, cars: np.ndarray) -> None:
+        if self.field is None or self.obs.shape[1] == self._summary_at or cars.size == 0:
+            return
+        from laplab.sim.collision import SUMMARY_COUNT, write_summary
+        ob = self.field.obstacles
+        write_summary(self.obs, self._summary_at, cars, self.state, ob.x, ob.y, ob.kind, self.field.speed,
+                      float(self.vehicle.max_speed), SUMMARY_COUNT)
 
     def _project_reference(self, cars: np.ndarray, direction: int, poses: np.ndarray):
         """Set the reference point of ``cars`` (all driving ``direction``) at ``poses`` (K, 3) and its
@@ -219,10 +293,42 @@ class Simulator:
         were stepped (those in progress before the call).
         """
         stepped = self.state.status == IN_PROGRESS
+        field = self.field
+        if field is not None and self.race.kind != HEAD_TO_MODEL:
+            moving = np.flatnonzero(stepped)
+            field.advance(moving)
+            if field.moving:
+                field.update(self.state, moving)
         step_kernel(self.state, np.ascontiguousarray(cmd_steer, dtype=np.float64),
                     np.ascontiguousarray(cmd_speed, dtype=np.float64), self.arrays[0], self.arrays[1],
                     self._vc, self._rules, self.obs, *self._look)
+        if field is not None:
+            self._collide(stepped)
         return stepped
+
+    def let_obstacles_drive(self, cars: np.ndarray, seconds: np.ndarray) -> None:
+        """Move the bots of ``cars`` on by ``seconds`` (K,) while the cars stand (an evaluation penalty)."""
+        field = self.field
+        if field is None or not field.moving or self.race.kind == HEAD_TO_MODEL:
+            return
+        cars = np.asarray(cars, dtype=np.int64)
+        steps = np.ceil(np.asarray(seconds, dtype=np.float64) / self.dt - 1e-9).astype(np.int64)
+        for k in range(int(steps.max(initial=0))):
+            field.advance(cars[steps > k])
+        field.update(self.state, cars)
+        self._summarise(cars)
+
+    def _collide(self, stepped: np.ndarray) -> None:
+        """After a step: other models' cars move to their new poses, cars that hit an obstacle crash,
+        and the STATE summaries follow."""
+        from laplab.sim.collision import COLLISION_MARGIN, SUMMARY_COUNT, collide_and_summarise
+        field, st = self.field, self.state
+        if self.race.kind == HEAD_TO_MODEL:
+            field.update(st, np.arange(self.num_cars), self.ghost)
+        count = SUMMARY_COUNT if self.obs.shape[1] > self._summary_at else 0
+        collide_and_summarise(st, stepped & ~self.ghost, field.obstacles, COLLISION_MARGIN,
+                              (field.body_offset, field.body_half_length, field.body_half_width), self.last_hit,
+                              self.obs, self._summary_at, field.speed, float(self.vehicle.max_speed), count)
 
 
 def wrapped_travel(delta: np.ndarray, length: float) -> np.ndarray:

@@ -10,6 +10,7 @@ from laplab.agents.hyperparameters import PRECISIONS, Hyperparameters, from_dict
 from laplab.env.metadata import ModelMetadata, metadata_from_dict
 from laplab.env.spec import ModelSpec, model_spec
 from laplab.errors import UserError
+from laplab.sim.race_type import RaceType
 from laplab.sim.state import EpisodeParams
 from laplab.track.registry import DEFAULT_TRACK
 from laplab.vehicle.params import PRESETS
@@ -55,6 +56,10 @@ class TrainConfig:
       the model metadata's ``version`` (:func:`laplab.vehicle.physics.car_for_version`; :attr:`car` is
       the car either way, and ``laplab.json`` records it). A car given explicitly (``--physics``) sets
       the metadata's version to match, so the model folder, its exports and DeepRacer agree on it.
+    - ``race_type`` (:class:`~laplab.sim.race_type.RaceType`): time trial (default; a ``laplab.json``
+      without it is one), object avoidance, head-to-bot or head-to-model, with its options; its
+      objects are on the track in training and evaluation, and a STATE model's vector carries their
+      summary.
     - ``cloned_from``: for a clone, the model and checkpoint its weights came from
       (``"SOURCE (checkpoint NAME)"``); None for a model trained from scratch.
     """
@@ -76,6 +81,7 @@ class TrainConfig:
     tracks: tuple[str, ...] = ()
     workers: int = 1
     cloned_from: str | None = None
+    race_type: RaceType = field(default_factory=RaceType)
     version: int = CONFIG_VERSION
 
     def __post_init__(self) -> None:
@@ -105,6 +111,13 @@ class TrainConfig:
                                                                                  "hyperparameters"))
         elif self.hyperparameters is not None and not isinstance(self.hyperparameters, Hyperparameters):
             raise ConfigError(f"hyperparameters must be Hyperparameters, got {type(self.hyperparameters).__name__}")
+        if isinstance(self.race_type, dict):  # laplab.json's object: validated here
+            object.__setattr__(self, "race_type", RaceType.from_dict(self.race_type, "race_type"))
+        elif not isinstance(self.race_type, RaceType):
+            raise ConfigError(f"race_type must be a RaceType, got {type(self.race_type).__name__}", field="race_type")
+        if self.race_type.kind == "head_to_model":
+            raise ConfigError("--race-type head_to_model races trained models against each other (laplab race MODEL_A "
+                              "MODEL_B); train for it with object_avoidance or head_to_bot", field="--race-type")
         if self.vehicle:
             if self.vehicle not in PRESETS:
                 raise ConfigError(f"physics: unknown car {self.vehicle!r}; known: {', '.join(sorted(PRESETS))}",
@@ -131,7 +144,7 @@ class TrainConfig:
     @property
     def spec(self) -> ModelSpec:
         """The model's spec: its metadata with the hyperparameters' ``stack_size``."""
-        return model_spec(self.model_metadata, self.hyper().stack_size)
+        return model_spec(self.model_metadata, self.hyper().stack_size, self.race_type.has_objects)
 
     @property
     def episode_limit(self) -> int:
@@ -151,7 +164,8 @@ class TrainConfig:
         hyperparameters even if laplab's defaults change)."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}
         return {**values, "tracks": list(self.tracks), "model_metadata": self.model_metadata.to_dict(),
-                "hyperparameters": self.hyper().to_dict(), "vehicle": self.car}
+                "hyperparameters": self.hyper().to_dict(), "vehicle": self.car,
+                "race_type": self.race_type.to_dict()}
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "laplab.json") -> "TrainConfig":
@@ -166,6 +180,7 @@ class TrainConfig:
             data["model_metadata"] = metadata_from_dict(data["model_metadata"], f"{source}: model_metadata")
         if data.get("hyperparameters") is not None:
             data["hyperparameters"] = hyperparameters_from_dict(data["hyperparameters"], f"{source}: hyperparameters")
+        data["race_type"] = RaceType.from_dict(data.get("race_type"), f"{source}: race_type")
         return cls(**data)
 
 

@@ -31,15 +31,21 @@ def reward_file(config: TrainConfig) -> Path:
 
 
 def job_track(config: TrainConfig) -> Track:
-    """The job's track, loaded once (the trainer, validation and evaluation laps all take it)."""
-    return load_track(config.track)
+    """The job's track, loaded once (the trainer, validation and evaluation laps all take it); refuses a
+    race type whose objects or bots do not fit on any of the job's tracks."""
+    track = load_track(config.track)
+    for name, _ in config.training_tracks():
+        other = track if name == config.track else load_track(name)
+        config.race_type.check_track(other.length, other.name)
+    return track
 
 
 def load_and_validate_reward(config: TrainConfig, track: Track, path: Path | None = None) -> RewardFunction:
     """Load the job's reward function and run the validation sweep on ``track``; raises RewardFunctionError."""
     action_space = config.model_metadata.action_space
     reward_fn = load_reward_function(path or reward_file(config), max_speed=action_space.max_speed)
-    report = validate_reward_function(reward_fn, track, action_space.sweep_actions(), isolate=True)
+    report = validate_reward_function(reward_fn, track, action_space.sweep_actions(), isolate=True,
+                                      race=config.race_type)
     if not report.passed:
         raise report.error
     return reward_fn

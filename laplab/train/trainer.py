@@ -121,9 +121,11 @@ class Trainer:
         self.folder = None
         self._listeners: list = []
         vehicle = vehicle_preset(config.car)
-        self.sim = Simulator(track, self.hp.num_episodes_between_training, vehicle, config.episode_params())
+        self.sim = Simulator(track, self.hp.num_episodes_between_training, vehicle, config.episode_params(),
+                             race=config.race_type, seed=config.seed)
         self.eval_sim = Simulator(track, config.eval_episodes, vehicle,
-                                  EpisodeParams(round_robin_advance=0.0, reverse=config.reverse))
+                                  EpisodeParams(round_robin_advance=0.0, reverse=config.reverse),
+                                  race=config.race_type, seed=config.seed + 1)
         randomization = None
         if config.domain_randomization:
             from laplab.sensors.randomize import RandomizationParams

@@ -61,7 +61,7 @@ def test_summary_figures():
         summarize([])
 
 
-def add_evaluation(model, laps, track="classic_2018", minutes=0, **kwargs):
+def add_evaluation(model, laps, track="classic_2018", minutes=0, race_type=None, **kwargs):
     folder = model_folder(model)
     if not folder.laplab_config.exists():
         folder.create().write_laplab_config({"track": track})
@@ -69,6 +69,8 @@ def add_evaluation(model, laps, track="classic_2018", minutes=0, **kwargs):
     ts = trials(laps, **kwargs)
     document = {"model": model, "checkpoint": "1_Step-10.ckpt", "track": {"name": track},
                 "trials": [t.to_dict() for t in ts], "summary": summarize(ts, OPTIMAL).to_dict()}
+    if race_type is not None:
+        document["race_type"] = race_type
     atomic_write_json(folder.evaluation_dir(stamp) / "summary.json", document)
     return stamp
 
@@ -114,6 +116,15 @@ def test_leaderboard_cli_json_and_table(evaluations, capsys):
     assert main(["leaderboard"]) == 0
     out = capsys.readouterr().out
     assert "leaderboard: classic_2018" in out and "leaderboard: oval" in out and "x2.100" in out
+
+
+def test_race_types_are_ranked_apart(evaluations):
+    add_evaluation("hotel", [7.0, 7.0, 7.0], race_type={"kind": "object_avoidance", "objects": 3})
+    boards = leaderboard("classic_2018")
+    board = "classic_2018 [object avoidance: 3 boxes, evenly spaced]"
+    assert list(boards) == ["classic_2018", board]
+    assert [e.model for e in boards[board]] == ["hotel"] and boards[board][0].race.startswith("object avoidance")
+    assert "hotel" not in [e.model for e in boards["classic_2018"]]
 
 
 def test_leaderboard_without_evaluations(capsys):

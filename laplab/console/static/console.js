@@ -205,11 +205,20 @@ const Console = (() => {
         renderCode();
       } catch (e) { out.className = "bad"; out.textContent = e.message; }
     });
+    const raceKind = () => document.querySelector('input[name="race"]:checked')?.value || "time_trial";
+    for (const r of document.querySelectorAll('input[name="race"]')) r.addEventListener("change", () => {
+      $("#race-objects").hidden = raceKind() !== "object_avoidance"; $("#race-bots").hidden = raceKind() !== "head_to_bot"; });
+    const raceType = () => {
+      const kind = raceKind();
+      if (kind === "object_avoidance") return {kind, objects: +$("#race-objects-count").value, randomize_objects: $("#race-randomize").checked};
+      if (kind === "head_to_bot") return {kind, bots: +$("#race-bots-count").value, bot_speed: +$("#race-bot-speed").value, lane_change: $("#race-lane-change").checked};
+      return null;
+    };
     $("#create-form").addEventListener("submit", async ev => {
       ev.preventDefault(); $("#submit").disabled = true;
       const body = {name: $("#name").value.trim(), description: $("#description").value, track: trackName, reward_function: reward.value,
                     hyperparameters: hyper(), max_time_s: +$("#max-time").value * 60};
-      if (!source) { body.model_metadata = metadata(); body.physics = $("#physics").value; }
+      if (!source) { body.model_metadata = metadata(); body.physics = $("#physics").value; body.race_type = raceType(); }
       try { const m = await api("POST", source ? `/api/models/${source.name}/clone` : "/api/models", body); location.href = `/models/${m.name}`; }
       catch (e) { showErrors(e); $("#submit").disabled = false; }
     });
@@ -294,7 +303,7 @@ const Console = (() => {
       if (model.status === "queued" && model.queue_position) $("#status").textContent = `queued: ${model.queue_position === 1 ? "next to start" : `number ${model.queue_position} in line`}`;
       $("#model-error").textContent = model.status === "failed" || model.status === "interrupted" ? (model.error || model.job?.error || "") : "";
       const cfg = model.config || {}; const meta = cfg.model_metadata || {};
-      $("#config").replaceChildren(...[["Track", model.track], ["Sensor", (model.sensor || []).join(", ")], ["Algorithm", model.algorithm],
+      $("#config").replaceChildren(...[["Track", model.track], ["Race type", model.race_type || "time trial"], ["Sensor", (model.sensor || []).join(", ")], ["Algorithm", model.algorithm],
         ["Action space", meta.action_space_type === "continuous" ? "continuous" : `${(meta.action_space || []).length} discrete actions`],
         ["Car", cfg.vehicle || "–"], ["Max time", duration(cfg.max_time_s)], ["Created", when(model.created)], ["Owner", model.owner], ["Description", model.description || "–"]]
         .concat(cfg.cloned_from ? [["Cloned from", cfg.cloned_from]] : [])
