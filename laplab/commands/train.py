@@ -111,7 +111,7 @@ def train_request(args: argparse.Namespace, name: str | None = None):
     from laplab.env.metadata import load_model_metadata
     from laplab.errors import UserError
     from laplab.train.config import parse_duration
-    from laplab.train.request import CLI_OPTIONS, TrainRequest
+    from laplab.train.request import TrainRequest, as_cli_error
     from laplab.commands.race_options import race_type_from_args
     try:
         values = {"name": name, "tracks": tuple(args.track or ()), "max_episodes": args.max_episodes,
@@ -136,9 +136,7 @@ def train_request(args: argparse.Namespace, name: str | None = None):
             values["domain_randomization"] = bool(args.domain_randomization)
         return TrainRequest.from_mapping(values)
     except UserError as exc:
-        if exc.field in CLI_OPTIONS:
-            exc.field = CLI_OPTIONS[exc.field]
-        raise
+        raise as_cli_error(exc) from None
 
 
 def _overrides(args: argparse.Namespace) -> dict:

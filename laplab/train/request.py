@@ -33,6 +33,20 @@ CLI_OPTIONS = {"name": "--name", "track": "--track", "tracks": "--track", "rewar
                "format": "--format", "checkpoint": "--checkpoint"}
 
 
+def as_cli_error(error: UserError) -> UserError:
+    """``error`` as ``laplab train`` reports it: its field is the option (``--physics``), and a
+    message that starts with the field's name starts with the option instead; else unchanged."""
+    option = CLI_OPTIONS.get(error.field)
+    if option is None:
+        return error
+    message = str(error)
+    if message.startswith(f"{error.field} ") or message.startswith(f"{error.field}:"):
+        message = option + message[len(error.field):]
+    cli = type(error).__new__(type(error))
+    UserError.__init__(cli, message, field=option)
+    return cli
+
+
 class RequestError(UserError, ValueError):
     """A job request's value out of range; ``field`` is the request's field it is about."""
 
@@ -164,7 +178,11 @@ class TrainRequest:
             validate_model_name(self.name)
         config = self.to_config()
         track = _checked(load_track, config.track, field="track")
-        _checked(config.race_type.check_track, track.length, track.name, field="race_type")
+        try:
+            config.race_type.check_track(track.length, track.name)
+        except UserError as exc:  # its field names a CLI option (--objects): the request's is race_type
+            exc.field = "race_type"
+            raise
         return config
 
 

@@ -12,7 +12,8 @@ from laplab.cli import build_parser
 from laplab.commands.train import train_request
 from laplab.errors import UserError
 from laplab.train.config import TrainConfig
-from laplab.train.request import CLI_OPTIONS, DEFAULT_MAX_TIME_S, ExportRequest, RequestError, TrainRequest
+from laplab.train.request import (CLI_OPTIONS, DEFAULT_MAX_TIME_S, ExportRequest, RequestError, TrainRequest,
+                                  as_cli_error)
 
 ACTIONS = [{"steering_angle": a, "speed": 1.0} for a in (-20, 0, 20)]
 REWARD = "def reward_function(params):\n    return 1.0\n"
@@ -27,7 +28,7 @@ def model_files(tmp_path):
     return api.write_model_files(tmp_path, REWARD, ACTIONS, {"batch_size": 32}, sensor=["STATE"])
 
 
-def test_one_default_max_time_everywhere(model_files, monkeypatch):
+def test_one_default_max_time_everywhere(model_files):
     assert TrainRequest().max_time_s == DEFAULT_MAX_TIME_S == TrainConfig().max_time_s
     assert _cli().max_time_s == DEFAULT_MAX_TIME_S  # laplab train without --max-time
     train = next(a for a in build_parser()._subparsers._group_actions[0].choices["train"]._actions
@@ -74,7 +75,9 @@ def test_a_bad_value_gets_the_same_message_and_field_from_every_door(model_files
         _cli(option, str(value))
     assert from_request.value.field == from_api.value.field == field
     assert from_cli.value.field == option == CLI_OPTIONS[field]
-    assert str(from_request.value) == str(from_api.value) == str(from_cli.value)
+    assert str(from_request.value) == str(from_api.value)
+    assert str(from_cli.value) == str(as_cli_error(from_request.value))  # the field's name -> the option's
+    assert str(from_cli.value).replace(option, field, 1) == str(from_request.value)
 
 
 def test_max_episodes_from_the_cli_and_a_mapping():
