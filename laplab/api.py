@@ -252,12 +252,17 @@ def _run(args: list[str], what: str) -> str:
     return done.stdout
 
 
-def evaluate(name: str, track: str | None = None, trials: int = 3, store: str | None = None,
+def evaluate(name: str, track: str | None = None, trials: int | None = None, store: str | None = None,
              extra_args: tuple[str, ...] = (), physics: str | None = None) -> dict[str, Any]:
     """Evaluate model ``name`` as ``laplab evaluate`` does (DeepRacer's trial rules, the car it trained
     with unless ``physics`` names another; kept in the model folder) and return its result: ``trials``
-    (lap times, statuses, off-tracks), the summary, the ``car``."""
-    args = ["evaluate", name, "--trials", str(trials), "--json", *_store_args(store), *extra_args]
+    (lap times, statuses, off-tracks; None: EvaluateRequest's default, 3), the summary, the ``car``.
+    The settings are checked here first (:class:`~laplab.evaluate.trials.EvaluateRequest`: the
+    console's messages and fields)."""
+    from laplab.evaluate.trials import EvaluateRequest
+    request = EvaluateRequest.from_mapping({"track": track, "physics": physics,
+                                            **({"trials": trials} if trials is not None else {})})
+    args = ["evaluate", name, "--trials", str(request.trials), "--json", *_store_args(store), *extra_args]
     if physics:
         args += ["--physics", str(physics)]
     if track:

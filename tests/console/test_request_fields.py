@@ -66,3 +66,9 @@ def test_evaluation_and_export_errors_carry_their_request_field(console, make_mo
     assert answer.status_code == 400 and answer.json()["detail"]["field"] == "off_track_penalty", answer.text
     answer = console.admin.post("/api/models/request-fields/exports", json={"checkpoint": ""})
     assert answer.status_code == 400 and answer.json()["detail"]["field"] == "checkpoint", answer.text
+
+
+def test_the_create_form_shows_the_request_default(console):
+    page = console.admin.get("/create")
+    assert page.status_code == 200, page.text[:300]
+    assert f'id="max-time" type="number" min="0.1" max="1440" step="0.1" value="{DEFAULT_MAX_TIME_S / 60:g}"' in page.text

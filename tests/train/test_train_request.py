@@ -145,3 +145,17 @@ def test_export_request_ranges():
     with pytest.raises(RequestError) as error:
         ExportRequest(checkpoint="")
     assert error.value.field == "checkpoint"
+
+
+def test_evaluate_request_errors_carry_their_field_from_laplab_api():
+    from laplab.evaluate.trials import EvaluateRequest, EvaluationSettings
+    assert EvaluateRequest is EvaluationSettings
+    with pytest.raises(UserError) as from_api:  # checked before any process starts
+        api.evaluate("no-such-model", trials=9)
+    with pytest.raises(UserError) as from_request:
+        EvaluateRequest.from_mapping({"trials": 9})
+    assert from_api.value.field == from_request.value.field == "trials"
+    assert str(from_api.value) == str(from_request.value)
+    with pytest.raises(UserError) as unknown:
+        EvaluateRequest.from_mapping({"laps": 2})
+    assert unknown.value.field == "laps"
