@@ -67,9 +67,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def write_race_video(path, result) -> None:
+    from laplab.evaluate.video import _TopdownFrames
     from laplab.sensors.render import draw_topdown
     from laplab.sensors.video import write_episode_video
-    from laplab.evaluate.video import _TopdownFrames
     poses = result.poses
 
     def frame(t: int):

@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import argparse
 
-from laplab.sim.race_type import RACE_TYPES, RaceType, RaceTypeError, parse_object_positions
+from laplab.sim.race_type import (
+    RACE_TYPES,
+    RaceType,
+    RaceTypeError,
+    parse_object_positions,
+)
 
 # option -> (RaceType field, type, help)
 _OPTIONS = {

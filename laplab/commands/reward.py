@@ -17,6 +17,8 @@ def register(subparsers) -> None:
     validate.add_argument("--track", default=None, help="track name or .npy path (default: the default track)")
     validate.add_argument("--model-metadata", default=None, help="model_metadata.json for the action space")
     validate.add_argument("--timeout", type=float, default=2.0, help="seconds one call may take (default 2)")
+    from laplab.commands.race_options import add_race_options
+    add_race_options(validate)  # an object-avoidance reward reads the objects_* keys: put objects on the track
     validate.set_defaults(func=run_validate)
 
 
@@ -36,8 +38,12 @@ def run_validate(args: argparse.Namespace) -> int:
     track = load_track(args.track or DEFAULT_TRACK)
     metadata = resolve_metadata(args.model_metadata)
     reward_fn = load_reward_function(args.file, max_speed=metadata.action_space.max_speed)
+    from laplab.commands.race_options import race_type_from_args
+    race = race_type_from_args(args)
+    if race is not None:
+        race.check_track(track.length, track.name)
     report = validate_reward_function(reward_fn, track, metadata.action_space.sweep_actions(), timeout_s=args.timeout,
-                                      isolate=True)
+                                      isolate=True, race=race)
     kind = "2018 signature" if reward_fn.is_legacy else "params dict"
     if report.passed:
         console.print(f"[green]PASS[/green] {args.file} ({kind}) on {track.name}: {report.calls} states, "

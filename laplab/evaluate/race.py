@@ -4,8 +4,8 @@ Every car starts from rest on the start line, side by side (inner lane, outer la
 drives ``laps`` laps; each car's obstacles are the other cars' bodies. An incident (off track,
 crashed, reversed, immobilized) puts the car back as evaluation does (previous step's progress,
 nearer quarter lane) and holds it for the penalty (DeepRacer's: 5 s after a crash, ``off_track_penalty``
-otherwise) while the others drive on; while it stands it collides with nothing (DeepRacer's blinking
-car). A car that hits another is the one that crashed; both are
+otherwise) while the others drive on; while it stands, and until it is clear of the other cars, it
+collides with nothing (DeepRacer's blinking car). A car that hits another is the one that crashed; both are
 put back if both overlap. The finish order is by finishing time; cars still racing at
 ``max_time`` are ranked after them by laps and progress. Drivers may have different action spaces and
 sensors (each reads its own observations), but must share one car (physics version).
@@ -13,8 +13,9 @@ sensors (each reads its own observations), but must share one car (physics versi
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -23,7 +24,13 @@ from laplab.env.spec import ModelSpec
 from laplab.evaluate.runner import put_back
 from laplab.sim.race_type import RaceType, RaceTypeError
 from laplab.sim.simulator import Simulator
-from laplab.sim.state import CRASHED, IN_PROGRESS, LAP_COMPLETE, STATUS_NAMES, EpisodeParams
+from laplab.sim.state import (
+    CRASHED,
+    IN_PROGRESS,
+    LAP_COMPLETE,
+    STATUS_NAMES,
+    EpisodeParams,
+)
 from laplab.track.geometry import Track
 from laplab.vehicle.params import VehicleParams
 
@@ -109,7 +116,9 @@ def run_race(drivers: list[Driver], track: Track, vehicle: VehicleParams, laps: 
         held = racing[hold[racing] > 0]
         hold[held] -= dt
         st.immobile_count[held] = 0  # standing out a penalty is not being stuck
-        sim.ghost[:] = hold > 0  # DeepRacer's blinking car: no collisions while it serves its penalty
+        # DeepRacer's blinking car: no collisions while it serves its penalty (and until it is clear of
+        # the others, so that two cars put back side by side do not crash again at once)
+        sim.ghost[:] = (hold > 0) | (sim.ghost & _overlapping(sim))
         for i in racing:
             code = int(st.status[i])
             if code == LAP_COMPLETE:
@@ -140,6 +149,21 @@ def run_race(drivers: list[Driver], track: Track, vehicle: VehicleParams, laps: 
     for position, r in enumerate(ranked, start=1):
         r.position = position
     return RaceResult(track, ranked, np.stack(poses), np.array(clocks))
+
+
+def _overlapping(sim: Simulator) -> np.ndarray:
+    """(N,) whether each car's body overlaps another car's body."""
+    from laplab.sim.collision import rectangles_overlap
+    st, field = sim.state, sim.field
+    out = np.zeros(sim.num_cars, dtype=bool)
+    c, s = np.cos(st.yaw), np.sin(st.yaw)
+    cx, cy = st.x + field.body_offset * c, st.y + field.body_offset * s
+    for i in range(sim.num_cars):
+        for j in range(i + 1, sim.num_cars):
+            if rectangles_overlap(cx[i], cy[i], st.yaw[i], field.body_half_length, field.body_half_width,
+                                  cx[j], cy[j], st.yaw[j], field.body_half_length, field.body_half_width):
+                out[i] = out[j] = True
+    return out
 
 
 def race_picture(result: RaceResult, names: list[str]) -> np.ndarray:

@@ -16,7 +16,7 @@ import numba as nb
 import numpy as np
 
 from laplab.sim.kernel import PARALLEL_THRESHOLD
-from laplab.sim.obstacles import BOT_CAR, BOX, EMPTY, MODEL_CAR
+from laplab.sim.obstacles import EMPTY
 from laplab.sim.state import CRASHED, IN_PROGRESS, OFF_TRACK
 
 COLLISION_MARGIN = np.array([0.0, 0.05, 0.0, 0.0])  # m per kind (EMPTY, BOX, BOT_CAR, MODEL_CAR)
@@ -168,5 +168,3 @@ def collide_and_summarise(st, stepped, ob, margin, body, hit, obs, first, ospeed
                                     ob.yaw, ob.half_length, ob.half_width, ob.kind, margin, *body, hit, obs, first,
                                     np.arange(n), st.ref_x, st.ref_y, ospeed, max_speed, count)
 
-
-KIND_CODES = {"box": BOX, "bot_car": BOT_CAR, "model_car": MODEL_CAR}

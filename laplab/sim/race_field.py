@@ -216,21 +216,6 @@ class ObstacleField:
         else:
             _poses(0, cars.size, *args)
 
-    def distances(self, direction: np.ndarray, cars: np.ndarray) -> np.ndarray:
-        """(K, slots) DeepRacer's ``objects_distance``: arc length of each obstacle along the centre line of
-        the car's driving direction, in [0, track length)."""
-        if self.race.kind != HEAD_TO_MODEL:
-            length = self.arrays[0].length
-            return np.mod(self.arc[cars], length)
-        from laplab.track.projection import project_points
-        out = np.zeros((cars.size, self.slots))
-        for d in (0, 1):
-            sel = direction == d
-            if sel.any():
-                pts = np.stack([self.obstacles.x[cars[sel]].ravel(), self.obstacles.y[cars[sel]].ravel()], axis=1)
-                out[sel] = project_points(self.arrays[d], pts).arc_length.reshape(-1, self.slots)
-        return out
-
 
 @nb.njit(cache=True, parallel=True)
 def _poses_parallel(chunks, n, cars, direction, arc, frac, slope, fwd, rev, ox, oy, oyaw):
@@ -266,5 +251,3 @@ def _group_bodies(cars, group, x, y, yaw, speed, status, ghost, body_offset, ox,
             ospeed[i, j] = speed[other]
             j += 1
 
-
-__all__ = ["ObstacleField", "BOX_SIZE", "spread", "lane_pose", "EMPTY"]

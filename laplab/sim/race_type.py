@@ -155,7 +155,7 @@ class RaceType:
         return data
 
     @classmethod
-    def from_dict(cls, data: dict | None, source: str = "laplab.json") -> "RaceType":
+    def from_dict(cls, data: dict | None, source: str = "laplab.json") -> RaceType:
         if data is None:
             return cls()
         if not isinstance(data, dict):

@@ -62,3 +62,14 @@ def test_config_round_trips_its_race_and_old_files_are_time_trials():
     del data["race_type"]
     assert TrainConfig.from_dict(data).race_type.kind == "time_trial"
     assert config.spec.observation_space.shape[0] == TrainConfig().spec.observation_space.shape[0] + 12
+
+
+def test_reward_validate_puts_the_race_objects_on_the_track(tmp_path, capsys):
+    from laplab.cli import main
+    from tests.sim.test_race_types import DEEPRACER_OA_EXAMPLE
+    path = tmp_path / "reward_function.py"
+    path.write_text(DEEPRACER_OA_EXAMPLE)
+    assert main(["reward", "validate", str(path)]) == 1  # a time trial has no objects: objects_distance[0] fails
+    assert "IndexError" in capsys.readouterr().out
+    assert main(["reward", "validate", str(path), "--race-type", "object_avoidance", "--objects", "3"]) == 0
+    assert "PASS" in capsys.readouterr().out

@@ -13,7 +13,7 @@ from laplab.sim.obstacles import BOT_CAR, BOX
 from laplab.sim.race_field import LANE, lane_pose
 from laplab.sim.race_type import RaceType, RaceTypeError, parse_object_positions
 from laplab.sim.simulator import Simulator
-from laplab.sim.state import CRASHED, EpisodeParams, IN_PROGRESS
+from laplab.sim.state import CRASHED, IN_PROGRESS, EpisodeParams
 from laplab.track.registry import load_track
 
 TRACK = load_track("classic_2018")
