@@ -34,14 +34,17 @@ CLI_OPTIONS = {"name": "--name", "track": "--track", "tracks": "--track", "rewar
 
 
 def as_cli_error(error: UserError) -> UserError:
-    """``error`` as ``laplab train`` reports it: its field is the option (``--physics``), and a
-    message that starts with the field's name starts with the option instead; else unchanged."""
+    """``error`` as ``laplab train`` reports it: its field is the option (``--physics``), and its
+    message names the option (a message starting with the field's name starts with the option
+    instead, another one gets ``--option: `` before it); unchanged for a field without an option."""
     option = CLI_OPTIONS.get(error.field)
     if option is None:
         return error
     message = str(error)
     if message.startswith(f"{error.field} ") or message.startswith(f"{error.field}:"):
         message = option + message[len(error.field):]
+    elif not message.startswith(option):
+        message = f"{option}: {message}"
     cli = type(error).__new__(type(error))
     UserError.__init__(cli, message, field=option)
     return cli

@@ -86,7 +86,8 @@ def test_max_episodes_from_the_cli_and_a_mapping():
     with pytest.raises(UserError) as from_mapping:
         TrainRequest.from_mapping({"max_episodes": 0})
     assert (from_cli.value.field, from_mapping.value.field) == ("--max-episodes", "max_episodes")
-    assert str(from_cli.value) == str(from_mapping.value) == "max episodes must be an integer >= 1, got 0"
+    assert str(from_mapping.value) == "max episodes must be an integer >= 1, got 0"
+    assert str(from_cli.value) == "--max-episodes: max episodes must be an integer >= 1, got 0"  # names the option
 
 
 def test_max_time_errors_name_the_max_time(model_files):
@@ -95,7 +96,7 @@ def test_max_time_errors_name_the_max_time(model_files):
     with pytest.raises(UserError) as from_api:
         api.training_request("m", model_files, max_time="-5m")
     assert from_cli.value.field == "--max-time" and from_api.value.field == "max_time_s"
-    assert str(from_cli.value) == str(from_api.value)
+    assert str(from_cli.value) == f"--max-time: {from_api.value}" == str(as_cli_error(from_api.value))
     with pytest.raises(UserError) as number:
         api.training_request("m", model_files, max_time=-300)
     assert number.value.field == "max_time_s" and "max time must be a positive number" in str(number.value)
