@@ -86,6 +86,7 @@ class ValidateReward(BaseModel):
     source: str = Field(max_length=100_000)
     track: str | None = None
     model_metadata: dict | None = None
+    race_type: dict | None = None
 
 
 def _service(request: Request):
@@ -160,10 +161,11 @@ def _job_workers(request: Request, requested: int | None, episodes: int) -> dict
     return {"workers": count} if cluster is not None else {}
 
 
-async def _validate_reward(request: Request, user: User, source: str, track: str | None, metadata: dict | None) -> dict:
+async def _validate_reward(request: Request, user: User, source: str, track: str | None, metadata: dict | None,
+                           race_type: dict | None = None) -> dict:
     from laplab.jobs.validate import validate_confined
     return await run_in_threadpool(validate_confined, source, track, metadata, user.id,
-                                   request.app.state.sandbox)
+                                   request.app.state.sandbox, race_type)
 
 
 def check_max_time(request: Request, max_time_s: float | None) -> None:
@@ -236,7 +238,8 @@ async def _validate_and_claim(request: Request, user: User, key: str, body: Clon
     """Run the validation sweep on ``reward_source`` (None: the default reward, nothing to check; a
     failure is a 400 naming its line), then claim ``key`` (``body.name``) for ``user`` (409 when taken)."""
     if reward_source is not None:
-        answer = await _validate_reward(request, user, reward_source, track, model_metadata)
+        answer = await _validate_reward(request, user, reward_source, track, model_metadata,
+                                        getattr(body, "race_type", None))
         if not answer["ok"]:
             first = answer["errors"][0]
             raise bad_request(first["message"], "reward_function", line=first.get("line"), errors=answer["errors"])

@@ -185,7 +185,7 @@ def _stem(filename: str | None) -> str | None:
 @router.post("/reward/validate")
 async def validate_reward(body: ValidateReward, request: Request, user: User = Depends(current_user)) -> dict:
     check_track_name(body.track)
-    return await _validate_reward(request, user, body.source, body.track, body.model_metadata)
+    return await _validate_reward(request, user, body.source, body.track, body.model_metadata, body.race_type)
 
 
 @router.get("/reward/examples")

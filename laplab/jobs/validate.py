@@ -22,6 +22,7 @@ def _validate(request: dict) -> dict:
     from laplab.reward.errors import RewardFunctionError
     from laplab.reward.loader import load_reward_function
     from laplab.reward.validate import validate_reward_function
+    from laplab.sim.race_type import RaceType
     from laplab.track.registry import DEFAULT_TRACK, load_track
 
     track = load_track(request.get("track") or DEFAULT_TRACK)
@@ -33,7 +34,10 @@ def _validate(request: dict) -> dict:
         path.write_text(source, encoding="utf-8")
         try:
             reward_fn = load_reward_function(str(path), max_speed=metadata.action_space.max_speed)
-            report = validate_reward_function(reward_fn, track, metadata.action_space.sweep_actions(), isolate=True)
+            race = RaceType.from_dict(request.get("race_type"), "race_type")
+            race.check_track(track.length, track.name)
+            report = validate_reward_function(reward_fn, track, metadata.action_space.sweep_actions(), isolate=True,
+                                              race=race if race.has_objects else None)
         except RewardFunctionError as exc:
             return {"ok": False, "errors": [_error(exc, path)], "calls": 0}
     if report.passed:
@@ -60,8 +64,9 @@ def main() -> int:
 
 
 def validate_confined(source: str, track: str | None, model_metadata: dict | None, owner: int,
-                      sandbox: bool | None = None) -> dict:
-    """Run the validation in a confined child process; returns its answer (a dict as above)."""
+                      sandbox: bool | None = None, race_type: dict | None = None) -> dict:
+    """Run the validation in a confined child process; returns its answer (a dict as above).
+    ``race_type`` (a RaceType's dict) puts the race's objects on the track."""
     from laplab.jobs.confinement import SANDBOX_HOME, JobLimits, Mounts, bubblewrap_works, clean_environment, confined_command, limits_preexec
     from laplab.settings import Settings, current_settings
     settings = current_settings()
@@ -82,7 +87,8 @@ def validate_confined(source: str, track: str | None, model_metadata: dict | Non
         env = clean_environment({**where, "NUMBA_CACHE_DIR": f"{SANDBOX_HOME}/cache/numba" if use else str(cache / "numba")},
                                 sandboxed=use)
         command = confined_command([sys.executable, "-m", "laplab.jobs.validate"], mounts, use)
-        request = json.dumps({"source": source, "track": track, "model_metadata": model_metadata})
+        request = json.dumps({"source": source, "track": track, "model_metadata": model_metadata,
+                              "race_type": race_type})
         try:
             done = subprocess.run(command, input=request.encode(), capture_output=True, env=env,
                                   timeout=VALIDATION_TIMEOUT_S, preexec_fn=limits_preexec(JobLimits.console(cpu_seconds=120)),

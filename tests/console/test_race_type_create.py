@@ -29,3 +29,15 @@ def test_create_object_avoidance_model_records_and_shows_its_race(console):
     detail = console.admin.get("/api/models/oa-model").json()
     assert detail["config"]["race_type"]["kind"] == "object_avoidance" and detail["config"]["race_type"]["objects"] == 2
     assert detail["race_type"] == "object avoidance: 2 boxes, evenly spaced"
+
+
+def test_an_object_avoidance_reward_validates_with_the_race_objects(console):
+    from tests.sim.test_race_types import DEEPRACER_OA_EXAMPLE
+    plain = console.admin.post("/api/reward/validate", json={"source": DEEPRACER_OA_EXAMPLE})
+    assert plain.json()["ok"] is False and "IndexError" in plain.json()["errors"][0]["message"]
+    race = {"kind": "object_avoidance", "objects": 3}
+    ok = console.admin.post("/api/reward/validate", json={"source": DEEPRACER_OA_EXAMPLE, "race_type": race})
+    assert ok.json()["ok"] is True, ok.json()
+    created = console.admin.post("/api/models", json={"name": "oa-example", "reward_function": DEEPRACER_OA_EXAMPLE,
+                                                       "race_type": race, "max_time_s": 3})
+    assert created.status_code == 201, created.text

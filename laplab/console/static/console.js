@@ -198,7 +198,7 @@ const Console = (() => {
     $("#validate").addEventListener("click", async () => {
       const out = $("#validate-result"); out.className = ""; out.textContent = "validating…"; $("#reward-error").textContent = "";
       try {
-        const r = await api("POST", "/api/reward/validate", {source: reward.value, track: trackName, model_metadata: metadata()});
+        const r = await api("POST", "/api/reward/validate", {source: reward.value, track: trackName, model_metadata: metadata(), race_type: source ? null : raceType()});
         if (r.ok) { out.className = "ok"; out.textContent = `Passed: ${r.calls} states, reward ${fmt(r.minimum, 3)} to ${fmt(r.maximum, 3)}`; errorLine = null; }
         else { out.className = "bad"; out.textContent = r.errors[0].line ? `Failed on line ${r.errors[0].line}` : "Failed";
                $("#reward-error").textContent = r.errors.map(e => (e.line ? `line ${e.line}: ` : "") + e.message).join("\n"); errorLine = r.errors[0].line; }
