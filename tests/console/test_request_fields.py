@@ -4,6 +4,8 @@ carries (no message is looked into)."""
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
 from laplab.errors import UserError
@@ -47,12 +49,18 @@ def test_a_model_created_without_max_time_trains_for_the_default(console):
     assert created.status_code == 201, created.text
     job = [j for j in console.app.state.store.jobs(kind=("train",)) if j.model.endswith("default-time")][-1]
     assert job.params["max_time_s"] == DEFAULT_MAX_TIME_S  # what the worker builds its TrainRequest from
-    detail = console.admin.get("/api/models/default-time").json()
-    if detail["config"] is not None:  # queued (the request's config) or started (laplab.json)
-        assert detail["config"]["max_time_s"] == DEFAULT_MAX_TIME_S
+    seen = set()  # the config shown while queued (the request's) and once started (its laplab.json)
+    deadline = time.monotonic() + 300
+    while "training" not in seen and time.monotonic() < deadline:
+        detail = console.admin.get("/api/models/default-time").json()
+        if detail["config"] is not None:
+            assert detail["config"]["max_time_s"] == DEFAULT_MAX_TIME_S, detail["config"]
+            seen.add(detail["status"])
+        assert detail["status"] in ("queued", "training"), detail
+        time.sleep(0.2)
+    assert "training" in seen
     console.admin.post("/api/models/default-time/stop")
     console.wait_for(console.admin, "default-time", ("ready", "failed", "interrupted"), timeout_s=300)
-    assert console.admin.get("/api/models/default-time").json()["config"]["max_time_s"] == DEFAULT_MAX_TIME_S
 
 
 def test_evaluation_and_export_errors_carry_their_request_field(console, make_model):
