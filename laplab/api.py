@@ -24,7 +24,7 @@ from typing import Any
 
 from laplab.errors import UserError
 
-__all__ = ["ModelFiles", "TrainingJob", "evaluate", "export_for_car", "write_model_files"]
+__all__ = ["ModelFiles", "TrainingJob", "evaluate", "export_for_car", "training_request", "write_model_files"]
 
 RUNNING, COMPLETED, FAILED, STOPPED = "InProgress", "Completed", "Failed", "Stopped"
 

@@ -160,3 +160,9 @@ def test_evaluate_request_errors_carry_their_field_from_laplab_api():
     with pytest.raises(UserError) as unknown:
         EvaluateRequest.from_mapping({"laps": 2})
     assert unknown.value.field == "laps"
+
+
+def test_laplab_export_checks_the_export_request(capsys):
+    from laplab.cli import main
+    assert main(["export", "any-model", "--checkpoint", ""]) == 2
+    assert "--checkpoint must be 'best', 'last' or a checkpoint file name" in capsys.readouterr().err
