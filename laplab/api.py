@@ -27,7 +27,8 @@ from laplab.errors import UserError
 if TYPE_CHECKING:
     from laplab.sim.race_type import RaceType
 
-__all__ = ["ModelFiles", "TrainingJob", "evaluate", "export_for_car", "import_model", "write_model_files"]
+__all__ = ["ModelFiles", "TrainingJob", "evaluate", "export_for_car", "import_model", "training_request",
+           "write_model_files"]
 
 RUNNING, COMPLETED, FAILED, STOPPED = "InProgress", "Completed", "Failed", "Stopped"
 
@@ -100,34 +101,31 @@ class TrainingJob:
     started: float = field(default_factory=time.time)
 
     @classmethod
-    def start(cls, name: str, files: ModelFiles, track: str = "classic_2018", max_time: str = "10m",
-              workers: int = 1, store: str | None = None, ray_address: str | None = None,
-              extra_args: tuple[str, ...] = (), log_folder: str | os.PathLike | None = None,
-              physics: str | None = None, race_type: "RaceType | dict | None" = None) -> "TrainingJob":
+    def start(cls, name: str, files: ModelFiles, track: str | list[str] | None = None,
+              max_time: str | float | None = None, workers: int = 1, store: str | None = None,
+              ray_address: str | None = None, extra_args: tuple[str, ...] = (),
+              log_folder: str | os.PathLike | None = None, physics: str | None = None,
+              race_type: "RaceType | dict | None" = None) -> "TrainingJob":
         """Start training model ``name`` in the background and return at once.
 
-        ``track`` may be a list (``["reInvent2019_track", "Canada_Training@reversed"]``) for a
-        multi-track job, one track per rollout worker in turn; ``workers`` > 1 runs rollout workers on
+        ``track`` (None: laplab's default track) may be a list (``["reInvent2019_track",
+        "Canada_Training@reversed"]``) for a multi-track job, one track per rollout worker in turn;
+        ``max_time`` is seconds or a duration (``"90s"``, ``"20m"``; None: the default of every door,
+        :data:`laplab.train.request.DEFAULT_MAX_TIME_S`); ``workers`` > 1 runs rollout workers on
         Ray (a local one, or the cluster at ``ray_address``); ``store`` is ``s3://bucket/prefix`` or
         None for ``$LAPLAB_HOME/models``; ``physics`` (4, 5, 6 or classic) DeepRacer's car to train with
         (None: the one the model metadata's ``version`` chooses; docs/physics.md); ``race_type`` a
         :class:`laplab.sim.race_type.RaceType` (or its dict, e.g. ``{"kind": "object_avoidance",
         "objects": 3}``; None: a time trial; docs/race-types.md).
+
+        The request is checked here, as the console's API checks it (:meth:`TrainRequest.validate
+        <laplab.train.request.TrainRequest.validate>`): a bad value raises the same
+        :class:`~laplab.errors.UserError`, with the same ``field``, before any process starts.
         """
-        tracks = [track] if isinstance(track, str) else list(track)
-        args = ["train", "--name", name, "--reward", str(files.reward_function),
-                "--model-metadata", str(files.model_metadata), "--hyperparameters", str(files.hyperparameters),
-                "--max-time", str(max_time), "--quiet", *_store_args(store)]
-        for one in tracks:
-            args += ["--track", one]
-        if workers != 1:
-            args += ["--workers", str(workers)]
+        request = training_request(name, files, track, max_time, workers, physics, race_type)
+        args = ["train", *_train_args(request, files), "--quiet", *_store_args(store)]
         if ray_address:
             args += ["--ray-address", ray_address]
-        if physics:
-            args += ["--physics", str(physics)]
-        if race_type is not None:
-            args += race_type_args(race_type)
         log = Path(log_folder or files.reward_function.parent) / f"{name}-training.log"
         with open(log, "wb") as out:
             process = subprocess.Popen(_laplab(*args, *extra_args), stdout=out, stderr=subprocess.STDOUT,
@@ -171,6 +169,52 @@ class TrainingJob:
         evaluation progress (%) per episode; a matplotlib Figure (a notebook shows it)."""
         from laplab.analysis.metrics_chart import training_metrics_figure
         return training_metrics_figure(self.metrics(), title=self.name, window=window)
+
+
+def training_request(name: str, files: ModelFiles | None = None, track: str | list[str] | None = None,
+                     max_time: str | float | None = None, workers: int = 1, physics: str | None = None,
+                     race_type=None):
+    """The :class:`~laplab.train.request.TrainRequest` of :meth:`TrainingJob.start`'s arguments,
+    validated (files read, the track loaded); a bad value is a UserError naming the request's field."""
+    from laplab.agents.hyperparameters import load_hyperparameters
+    from laplab.env.metadata import load_model_metadata
+    from laplab.train.config import parse_duration
+    from laplab.train.request import TrainRequest
+    values: dict[str, Any] = {"name": name, "workers": workers, "physics": physics}
+    if track is not None:
+        values["tracks" if not isinstance(track, str) else "track"] = track if isinstance(track, str) else tuple(track)
+    if isinstance(max_time, str):
+        try:
+            values["max_time_s"] = parse_duration(max_time)
+        except UserError as exc:
+            raise type(exc)(str(exc), field="max_time_s") from None
+    elif max_time is not None:
+        values["max_time_s"] = max_time
+    if race_type is not None:
+        values["race_type"] = race_type.to_dict() if hasattr(race_type, "to_dict") else dict(race_type)
+    if files is not None:
+        values["reward_path"] = str(files.reward_function)
+        values["model_metadata"] = load_model_metadata(files.model_metadata).to_dict()
+        values["hyperparameters"] = load_hyperparameters(files.hyperparameters).to_dict()
+    request = TrainRequest.from_mapping(values)
+    request.validate()
+    return request
+
+
+def _train_args(request, files: ModelFiles) -> list[str]:
+    """``laplab train`` options asking for ``request`` (its model files passed as the files)."""
+    args = ["--name", request.name, "--reward", str(files.reward_function), "--model-metadata",
+            str(files.model_metadata), "--hyperparameters", str(files.hyperparameters),
+            "--max-time", f"{request.max_time_s:f}s", "--seed", str(request.seed)]
+    for one in request.tracks or ((request.track,) if request.track else ()):
+        args += ["--track", one]
+    if request.workers not in (None, 1):
+        args += ["--workers", str(request.workers)]
+    if request.physics:
+        args += ["--physics", request.physics]
+    if request.race_type is not None:
+        args += race_type_args(request.race_type)
+    return args
 
 
 def read_model_file(name: str, relative: str, store: str | None = None) -> bytes | None:
@@ -226,12 +270,17 @@ def _run(args: list[str], what: str) -> tuple[str, dict]:
     return done.stdout, outcome
 
 
-def evaluate(name: str, track: str | None = None, trials: int = 3, store: str | None = None,
+def evaluate(name: str, track: str | None = None, trials: int | None = None, store: str | None = None,
              extra_args: tuple[str, ...] = (), physics: str | None = None) -> dict[str, Any]:
     """Evaluate model ``name`` as ``laplab evaluate`` does (DeepRacer's trial rules, the car it trained
     with unless ``physics`` names another; kept in the model folder) and return its result: ``trials``
-    (lap times, statuses, off-tracks), the summary, the ``car``."""
-    args = ["evaluate", name, "--trials", str(trials), "--json", *_store_args(store), *extra_args]
+    (lap times, statuses, off-tracks; None: EvaluateRequest's default, 3), the summary, the ``car``.
+    The settings are checked here first (:class:`~laplab.evaluate.trials.EvaluateRequest`: the
+    console's messages and fields)."""
+    from laplab.evaluate.trials import EvaluateRequest
+    request = EvaluateRequest.from_mapping({"track": track, "physics": physics,
+                                            **({"trials": trials} if trials is not None else {})})
+    args = ["evaluate", name, "--trials", str(request.trials), "--json", *_store_args(store), *extra_args]
     if physics:
         args += ["--physics", str(physics)]
     if track:

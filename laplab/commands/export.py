@@ -25,8 +25,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "model_metadata.json; --format car) or the DeepRacer console's import layout "
                     "(--format console). car and console need `pip install 'laplab[deepracer]'`. See docs/car.md.")
     export.add_argument("model", metavar="MODEL", help="name of the model")
-    export.add_argument("--format", choices=("tar", "onnx", "car", "console"), default="tar", help="what to write (default: tar)")
-    export.add_argument("--checkpoint", default="best", help="'best' (default), 'last' or a checkpoint file name")
+    from laplab.train.request import EXPORT_FORMATS, ExportRequest
+    export.add_argument("--format", choices=EXPORT_FORMATS, default="tar", help="what to write (default: tar)")
+    export.add_argument("--checkpoint", default=ExportRequest.checkpoint,
+                        help=f"'{ExportRequest.checkpoint}' (default), 'last' or a checkpoint file name")
     export.add_argument("--full-state", action="store_true",
                         help="tar: add the optimizer state and target networks (with --checkpoint last) so "
                              "`laplab train --resume` continues exactly on another machine; by default an "
@@ -177,6 +179,11 @@ def check_out_path(out: Path | str | None, option: str = "--out") -> None:
 
 def export_command(args: argparse.Namespace) -> int:
     from laplab.commands.store_option import store_session, without_traces
+    from laplab.train.request import ExportRequest, as_cli_error
+    try:  # the ranges and messages of the console's export jobs
+        ExportRequest(format=args.format, checkpoint=args.checkpoint)
+    except UserError as exc:
+        raise as_cli_error(exc) from None
     check_out_path(args.out)
     with store_session(args, "export") as store:
         if store:

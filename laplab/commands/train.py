@@ -22,9 +22,14 @@ def _add_job_options(parser: argparse.ArgumentParser, defaults: bool) -> None:
     parser.add_argument("--hyperparameters", default=none,
                         help="hyperparameters.json, or the JSON itself, e.g. '{\"num_epochs\": 5}' (other keys keep "
                              "their defaults)")
-    parser.add_argument("--max-time", default="20m" if defaults else none, help="stop after this long (e.g. 90s, 20m, 1h)")
+    from laplab.train.request import TrainRequest
+    default = TrainRequest()  # the defaults of every door (laplab.train.request)
+    parser.add_argument("--max-time", default=none,
+                        help="stop after this long (e.g. 90s, 20m, 1h; default " +
+                             (f"{default.max_time_s / 60:g}m)" if defaults else "the source's)"))
     parser.add_argument("--max-episodes", type=int, default=none, help="stop after this many training episodes")
-    parser.add_argument("--seed", type=int, default=0 if defaults else none, help="random seed")
+    parser.add_argument("--seed", type=int, default=none,
+                        help=f"random seed (default {default.seed})" if defaults else "random seed")
     parser.add_argument("--physics", default=none, metavar="V",
                         help="DeepRacer's car to train with: 4, 5 or 6 (model_metadata.json's version decides by "
                              "default; no version: 6, DeepRacer on AWS's) or classic (laplab's car before them)")
@@ -99,30 +104,51 @@ def register(subparsers) -> None:
     clone.set_defaults(func=run_clone)
 
 
-def _overrides(args: argparse.Namespace) -> dict:
+def train_request(args: argparse.Namespace, name: str | None = None):
+    """The :class:`~laplab.train.request.TrainRequest` the options ask for (files read and checked);
+    an error's ``field`` is the option's name (``--max-time``), its message the request's."""
     from laplab.agents.hyperparameters import load_hyperparameters, parse_hyperparameters
     from laplab.env.metadata import load_model_metadata
+    from laplab.errors import UserError
     from laplab.train.config import parse_duration
-    tracks = args.track or []
-    out = {"track": tracks[0] if len(tracks) == 1 else None,
-           "tracks": tuple(tracks) if len(tracks) > 1 else (() if tracks else None),
-           "reward_path": str(Path(args.reward).resolve()) if args.reward else None,
-           "max_episodes": args.max_episodes, "seed": args.seed,
-           "max_time_s": parse_duration(args.max_time) if args.max_time else None}
-    if args.model_metadata:
-        out["model_metadata"] = load_model_metadata(args.model_metadata).to_dict()
-    if getattr(args, "physics", None):
-        from laplab.errors import UserError
-        from laplab.vehicle.physics import PhysicsError, resolve_physics
-        try:
-            out["vehicle"] = resolve_physics(args.physics)
-        except PhysicsError as error:
-            raise UserError(str(error), field="--physics") from None
-    if args.hyperparameters and args.hyperparameters.lstrip().startswith(("{", "[", '"')):  # JSON, not a file
-        out["hyperparameters"] = parse_hyperparameters(args.hyperparameters, "--hyperparameters").to_dict()
-    elif args.hyperparameters:
-        out["hyperparameters"] = load_hyperparameters(args.hyperparameters).to_dict()
-    return out
+    from laplab.train.request import TrainRequest, as_cli_error
+    from laplab.commands.race_options import race_type_from_args
+    try:
+        values = {"name": name, "tracks": tuple(args.track or ()), "max_episodes": args.max_episodes,
+                  "seed": args.seed, "physics": getattr(args, "physics", None), "workers": args.workers,
+                  "reward_path": str(Path(args.reward).resolve()) if args.reward else None}
+        if args.max_time:
+            try:
+                values["max_time_s"] = parse_duration(args.max_time)
+            except UserError as exc:
+                raise type(exc)(str(exc), field="max_time_s") from None
+        if args.model_metadata:
+            values["model_metadata"] = load_model_metadata(args.model_metadata).to_dict()
+        if args.hyperparameters and args.hyperparameters.lstrip().startswith(("{", "[", '"')):  # JSON, not a file
+            values["hyperparameters"] = parse_hyperparameters(args.hyperparameters, "--hyperparameters").to_dict()
+        elif args.hyperparameters:
+            values["hyperparameters"] = load_hyperparameters(args.hyperparameters).to_dict()
+        if hasattr(args, "race_type"):
+            race = race_type_from_args(args)
+            values["race_type"] = race.to_dict() if race is not None else None
+        if hasattr(args, "precision"):
+            values["precision"] = args.precision
+            values["domain_randomization"] = bool(args.domain_randomization)
+        return TrainRequest.from_mapping(values)
+    except UserError as exc:
+        raise as_cli_error(exc) from None
+
+
+def _overrides(args: argparse.Namespace) -> dict:
+    """A clone's (or a resume's) changes to its source's config: what the options name, None elsewhere."""
+    request = train_request(args)
+    values = request.config_values()
+    out = {key: values.get(key) for key in ("track", "tracks", "reward_path", "max_episodes", "model_metadata",
+                                            "hyperparameters", "vehicle")}
+    out["tracks"] = values.get("tracks", () if args.track else None)
+    out["seed"] = args.seed
+    out["max_time_s"] = request.max_time_s if args.max_time else None
+    return {k: v for k, v in out.items() if v is not None}
 
 
 class _Flag:
@@ -212,11 +238,9 @@ def _start_workers(trainer, console: Console, ray_address: str | None, watch):
 
 
 def _scale(args: argparse.Namespace) -> tuple[int | None, str]:
-    """(--workers, the learner's device), checked, and the cluster reachable, before any folder is written."""
+    """(--workers, the learner's device), the cluster reachable, before any folder is written (the
+    request checks --workers' range)."""
     from laplab.cluster.launch import resolve_device
-    from laplab.errors import UserError
-    if args.workers is not None and args.workers < 1:
-        raise UserError(f"--workers must be at least 1, got {args.workers}")
     if args.ray_address:
         from laplab.cluster.collector import check_reachable
         check_reachable(args.ray_address)
@@ -231,10 +255,7 @@ def _check_workers(config) -> None:
 
 
 def run_train(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     from laplab.errors import UserError
-    from laplab.train.config import TrainConfig
     from laplab.train.jobs import create_training, resume_training
 
     from laplab.commands.store_option import store_session
@@ -255,26 +276,20 @@ def run_train(args: argparse.Namespace) -> int:
                 raise UserError(f"a resumed job keeps its {what} (laplab.json records it); to train with another, "
                                 f"`laplab clone {args.resume} NEW {option} ...` (a clone keeps the action space "
                                 "and the sensors).", field=option)
-        overrides = _overrides(args)
+        from laplab.train.request import TrainRequest
+        max_time = _overrides(args).get("max_time_s", TrainRequest().max_time_s)
     else:
-        values = {k: v for k, v in _overrides(args).items() if v is not None}
-        values["domain_randomization"] = bool(args.domain_randomization)
-        from laplab.commands.race_options import race_type_from_args
-        race = race_type_from_args(args)
-        if race is not None:
-            values["race_type"] = race
-        values["precision"] = args.precision
+        request = train_request(args, args.name)
     workers, device = _scale(args)
     with _StopFlag() as stop, store_session(args, "train") as store:  # Ctrl-C while setting up: a clean stop
         if args.resume:
             listeners = store.resume_job(args.resume) if store else ()
-            trainer = resume_training(args.resume, overrides["max_time_s"], overrides["max_episodes"],
+            trainer = resume_training(args.resume, max_time, args.max_episodes,
                                       trust_reward=args.trust_reward, workers=workers, device=device,
                                       listeners=listeners)
             console.print(f"resuming {args.resume} at iteration {trainer.iteration} ({trainer.episodes} episodes)")
         else:
-            values["workers"] = workers or 1
-            config = replace(TrainConfig(), **values)
+            config = request.to_config()
             _check_workers(config)
             listeners = store.create_job(args.name) if store else ()
             trainer = create_training(args.name, config, listeners=listeners, device=device)

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import math
 from dataclasses import fields
 from typing import Any, get_type_hints
 
@@ -22,32 +21,43 @@ from laplab.console.auth import current_user
 from laplab.console.roles import check_quota
 from laplab.console.service import display_name
 from laplab.evaluate.trials import EvaluationSettings
+from laplab.train.request import TrainRequest
 from laplab.jobs.db import StoreError, User
 from laplab.jobs.runner import models_dir
 
 router = APIRouter(prefix="/api")
 
 
-class CloneModel(BaseModel):
-    """A clone of a model: its name and what changes (the action space and sensors cannot)."""
+class _ModelBody(BaseModel):
+    """What every new model names besides its training: its name, description and reward function."""
     model_config = ConfigDict(extra="forbid")
     name: str
     description: str = Field("", max_length=255)
-    track: str | None = None
     reward_function: str | None = Field(None, max_length=100_000)
-    model_metadata: dict | None = None
-    hyperparameters: dict | None = None
-    max_time_s: float = 600.0
-    max_episodes: int | None = None
-    workers: int | None = Field(None, ge=1, le=1024, description="rollout workers on the console's Ray cluster")
 
 
-class CreateModel(CloneModel):
-    """A new model: what a clone gives, the training seed and DeepRacer's car (``physics``: 4, 5, 6 or
-    classic; None: the one model_metadata's ``version`` chooses)."""
-    seed: int = 0
-    physics: str | None = Field(None, max_length=32)
-    race_type: dict | None = Field(None, description="laplab.sim.race_type.RaceType's fields (None: time trial)")
+# The training fields of the console's bodies: TrainRequest's (laplab.train.request), with its types and
+# defaults, so that the console, the CLI, the worker and laplab.api cannot drift; the request's own
+# checks give the error messages and their fields.
+CLONE_FIELDS = ("track", "model_metadata", "hyperparameters", "max_time_s", "max_episodes", "workers")
+CREATE_FIELDS = (*CLONE_FIELDS, "seed", "physics", "race_type")
+_FIELD_HELP = {"workers": "rollout workers on the console's Ray cluster",
+               "physics": "DeepRacer's car: 4, 5, 6 or classic (None: the one model_metadata's version chooses)",
+               "race_type": "laplab.sim.race_type.RaceType's fields (None: time trial)",
+               "max_time_s": "stop after this many seconds of training"}
+
+
+def _train_body(name: str, names: tuple[str, ...], doc: str) -> type[BaseModel]:
+    hints = get_type_hints(TrainRequest)
+    defaults = {f.name: f.default for f in fields(TrainRequest)}
+    return pydantic_model(name, __base__=_ModelBody, __doc__=doc,
+                          **{n: (hints[n], Field(defaults[n], description=_FIELD_HELP.get(n))) for n in names})
+
+
+CloneModel = _train_body("CloneModel", CLONE_FIELDS, "A clone of a model: its name and what changes (the action "
+                                                     "space and sensors cannot).")
+CreateModel = _train_body("CreateModel", CREATE_FIELDS, "A new model: what a clone gives, the training seed, "
+                                                        "DeepRacer's car and the race type.")
 
 
 class Resume(BaseModel):
@@ -101,13 +111,10 @@ def _input_errors() -> tuple[type[BaseException], ...]:
 def _field_of(exc: BaseException) -> str | None:
     """The request field an input error is about (laplab.errors.UserError carries it)."""
     field = getattr(exc, "field", None)
-    from laplab.sim.race_type import RaceTypeError
-    if isinstance(exc, RaceTypeError):  # its option (--objects, ...) is a key of the request's race_type
-        return "race_type"
     return field if field in _REQUEST_FIELDS else None
 
 
-_REQUEST_FIELDS = ("hyperparameters", "model_metadata", "name", "track", "physics", "race_type")
+_REQUEST_FIELDS = ("name", *(f.name for f in fields(TrainRequest)), *(f.name for f in fields(EvaluationSettings)))
 
 
 def own_model(request: Request, name: str, user: User) -> str:
@@ -131,23 +138,15 @@ def check_track_name(track: str | None) -> None:
                           "import other routes with `laplab tracks import FILE.npy`", "track")
 
 
-def _check_train_inputs(values: dict):
-    """Build the TrainConfig the worker will build (every validator of the CLI), load the track, and
-    return the config."""
-    from dataclasses import replace
-
-    from laplab.track.registry import load_track
-    from laplab.train.config import TrainConfig
+def _check_train_inputs(values: dict) -> tuple[TrainRequest, object]:
+    """The :class:`TrainRequest` of ``values`` and the TrainConfig the worker will build from it
+    (every check of the CLI, the track loaded); a 400 naming the request's field otherwise."""
     check_track_name(values.get("track"))
     try:
-        config = replace(TrainConfig(), **{k: v for k, v in values.items() if v is not None})
-        track = load_track(config.track)
-        config.race_type.check_track(track.length, track.name)
+        request = TrainRequest.from_mapping(values)
+        return request, request.validate()
     except _input_errors() as exc:
-        raise bad_request(str(exc), _field_of(exc) or ("max_time_s" if "max time" in str(exc) else None)) from None
-    except (TypeError, ValueError) as exc:
-        raise bad_request(str(exc)) from None
-    return config
+        raise bad_request(str(exc), _field_of(exc)) from None
 
 
 def _job_workers(request: Request, requested: int | None, episodes: int) -> dict:
@@ -257,26 +256,12 @@ async def create_model(body: CreateModel, request: Request, user: User = Depends
     service = _service(request)
     check_max_time(request, body.max_time_s)
     key = _name_free(request, body.name, user)
-    values = {"track": body.track, "model_metadata": body.model_metadata, "hyperparameters": body.hyperparameters,
-              "max_time_s": body.max_time_s, "max_episodes": body.max_episodes, "seed": body.seed}
-    if body.physics:
-        from laplab.vehicle.physics import PhysicsError, resolve_physics
-        try:
-            values["vehicle"] = resolve_physics(body.physics, option="physics")
-        except PhysicsError as exc:
-            raise bad_request(str(exc), "physics") from None
-    if body.race_type:
-        from laplab.sim.race_type import RaceType, RaceTypeError
-        try:
-            values["race_type"] = RaceType.from_dict(body.race_type, "race_type").to_dict()
-        except (RaceTypeError, TypeError) as exc:
-            raise bad_request(str(exc), "race_type") from None
-    config = _check_train_inputs(values)
+    train, config = _check_train_inputs(body.model_dump(include=set(CREATE_FIELDS)))
     workers = _job_workers(request, body.workers, config.hyper().num_episodes_between_training)
     check_quota(request, user, "train", values)
     await _validate_and_claim(request, user, key, body, body.reward_function, body.track, body.model_metadata)
-    job = service.submit("train", key, user.id, {**{k: v for k, v in values.items() if v is not None}, **workers},
-                         reward_source=body.reward_function)
+    params = {k: v for k, v in train.to_mapping().items() if k != "workers"}  # the console's count: _job_workers
+    job = service.submit("train", key, user.id, {**params, **workers}, reward_source=body.reward_function)
     return {**service.describe(key, viewer=user), "job": job.to_dict()}
 
 
@@ -338,8 +323,11 @@ def resume_model(name: str, request: Request, body: Resume | None = None, user: 
     if not (models_dir() / name / "laplab.json").exists():
         raise HTTPException(409, f"{name!r} has no training to resume")
     max_time = body.max_time_s if body and body.max_time_s else None
-    if max_time is not None and not (math.isfinite(max_time) and max_time > 0):
-        raise bad_request(f"max time must be a positive number of seconds, got {max_time!r}", "max_time_s")
+    if max_time is not None:
+        try:
+            TrainRequest(max_time_s=max_time)  # its range and message
+        except _input_errors() as exc:
+            raise bad_request(str(exc), _field_of(exc)) from None
     check_max_time(request, max_time)
     saved = json.loads((models_dir() / name / "laplab.json").read_text())
     if max_time is None:
@@ -394,14 +382,14 @@ async def clone_model(name: str, body: CloneModel, request: Request, user: User 
     values = {"track": body.track or source_config.get("track"), "model_metadata": source_config["model_metadata"],
               "hyperparameters": body.hyperparameters or source_config.get("hyperparameters"),
               "max_time_s": body.max_time_s, "max_episodes": body.max_episodes}
-    config = _check_train_inputs(values)
+    train, config = _check_train_inputs({**values, "workers": body.workers})
     workers = _job_workers(request, body.workers, config.hyper().num_episodes_between_training)
     check_quota(request, user, "clone", values)
     source = body.reward_function
     if source is None:
         source = (models_dir() / name / "reward_function.py").read_text()
     await _validate_and_claim(request, user, key, body, source, values["track"], values["model_metadata"])
-    params = {k: v for k, v in values.items() if v is not None and k != "model_metadata"}
+    params = {k: v for k, v in train.to_mapping().items() if k in values and k != "model_metadata"}
     job = service.submit("clone", key, user.id, {**params, **workers, "source": name}, reward_source=source)
     return {**service.describe(key, viewer=user), "job": job.to_dict()}
 

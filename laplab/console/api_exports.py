@@ -20,6 +20,7 @@ from laplab.console.auth import current_user
 from laplab.console.outcomes import without_paths
 from laplab.jobs.db import Job, User
 from laplab.jobs.runner import job_folder, models_dir
+from laplab.train.request import JOB_EXPORT_FORMATS, ExportRequest
 
 router = APIRouter(prefix="/api")
 EXPORT_STATUS = {"queued": "queued", "running": "running", "stopping": "running", "done": "done"}
@@ -27,9 +28,10 @@ FILE_NAMES = {"car": "{name}.tar.gz", "console": "{name}-console.tar.gz"}
 
 
 class Export(BaseModel):
+    """An export job: laplab.train.request.ExportRequest's fields and defaults (its checks give the errors)."""
     model_config = ConfigDict(extra="forbid")
-    format: Literal["car", "console"] = "car"
-    checkpoint: str = Field("best", max_length=200)
+    format: Literal[JOB_EXPORT_FORMATS] = ExportRequest.format
+    checkpoint: str = Field(ExportRequest.checkpoint, max_length=200)
 
 
 def tensorflow_missing() -> str | None:
@@ -109,10 +111,15 @@ def start_export(name: str, body: Export, request: Request, user: User = Depends
         raise HTTPException(409, f"{name!r} is training: download it for the car when its training has ended")
     if not (models_dir() / name / "model" / "deepracer_checkpoints.json").exists():
         raise HTTPException(409, f"{name!r} has no checkpoint to export yet")
-    refused = _format_refused(name, body.format)  # a STATE model says so before TensorFlow is asked for
+    from laplab.errors import UserError
+    try:
+        export = ExportRequest.from_mapping(body.model_dump()).as_job()
+    except UserError as exc:
+        raise bad_request(str(exc), exc.field) from None
+    refused = _format_refused(name, export.format)  # a STATE model says so before TensorFlow is asked for
     if refused:
         raise bad_request(refused, "format")
-    job = service.submit("export", name, service.owners()[name], body.model_dump())
+    job = service.submit("export", name, service.owners()[name], export.to_mapping())
     return export_view(job)
 
 

@@ -29,17 +29,15 @@ KEEP_ALIVE_S = 15.0
 def start_evaluation(name: str, body: Evaluate, request: Request, user: User = Depends(current_user)) -> dict:
     name = own_model(request, name, user)
     service = _service(request)
-    from laplab.evaluate.trials import EvaluationError, EvaluationSettings
+    from laplab.evaluate.trials import EvaluateRequest
     check_track_name(body.track)
     try:
-        EvaluationSettings(**body.model_dump())
+        EvaluateRequest.from_mapping(body.model_dump())
         if body.track:
             from laplab.track.registry import load_track
             load_track(body.track.removesuffix("@reversed"))
-    except _input_errors() as exc:
-        raise bad_request(str(exc), _field_of(exc) or ("trials" if "trials" in str(exc) else None)) from None
-    except EvaluationError as exc:
-        raise bad_request(str(exc)) from None
+    except _input_errors() as exc:  # its field is the request's (no message is looked into)
+        raise bad_request(str(exc), _field_of(exc)) from None
     active = service.active_job(name)
     if active is not None and active.kind != "evaluate":
         raise HTTPException(409, f"{name!r} is training: evaluate it when its training has ended")

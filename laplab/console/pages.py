@@ -32,9 +32,10 @@ def _page(request: Request, template: str, user: User, **context) -> HTMLRespons
 def _defaults() -> dict:
     from laplab.agents.hyperparameters import Hyperparameters
     from laplab.env.metadata import ALGORITHMS, NETWORKS, SENSOR_CHOICES, ModelMetadata
+    from laplab.train.request import TrainRequest
     return {"metadata": ModelMetadata().to_dict(), "hyperparameters": Hyperparameters().to_dict(),
             "sensors": ["+".join(choice) for choice in SENSOR_CHOICES], "networks": NETWORKS,
-            "algorithms": ALGORITHMS}
+            "algorithms": ALGORITHMS, "max_time_min": f"{TrainRequest().max_time_s / 60:g}"}
 
 
 def _model_key(request: Request, name: str, user: User) -> str:

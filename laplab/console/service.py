@@ -186,14 +186,15 @@ class ConsoleService:
     def queued_config(job: Job) -> tuple[dict | None, str | None]:
         """(the laplab.json a queued training job will write, its reward function): what a model's page
         shows before the job starts. (None, None) for a job whose configuration is not all in its request."""
-        from dataclasses import fields, replace
+        from dataclasses import fields
 
-        from laplab.train.config import TrainConfig
+        from laplab.train.request import TrainRequest
         if job.kind != "train":  # a clone's configuration comes from its source when it starts
             return None, None
-        names = {f.name for f in fields(TrainConfig)}
+        names = {f.name for f in fields(TrainRequest)}
         try:
-            config = replace(TrainConfig(), **{k: v for k, v in job.params.items() if k in names}).to_dict()
+            request = TrainRequest.from_mapping({k: v for k, v in job.params.items() if k in names or k == "vehicle"})
+            config = request.to_config().to_dict()
         except (TypeError, ValueError):
             return None, None
         reward = job_folder(job.id) / "reward_function.py"

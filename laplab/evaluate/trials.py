@@ -13,7 +13,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable
@@ -21,6 +21,7 @@ from typing import Any, Callable
 import numpy as np
 
 from laplab.env.metadata import ModelMetadata
+from laplab.errors import UserError
 from laplab.env.observations import ObservationBuilder
 from laplab.env.spec import ModelSpec, model_spec
 from laplab.env.step import EpisodeStepper
@@ -39,13 +40,15 @@ SUMMARY_FILE = "summary.json"
 SUMMARY_VERSION = 1
 
 
-class EvaluationError(ValueError):
-    """Evaluation settings out of range, or a model that cannot be evaluated."""
+class EvaluationError(UserError, ValueError):
+    """Evaluation settings out of range (``field``: the setting), or a model that cannot be evaluated."""
 
 
 @dataclass(frozen=True)
 class EvaluationSettings:
-    """How an evaluation is run (DeepRacer console defaults).
+    """How an evaluation is run (DeepRacer console defaults): the one evaluate request of every door
+    (``laplab evaluate``, the console's API body, the job worker, :func:`laplab.api.evaluate`;
+    :data:`EvaluateRequest` is this class). Its errors' ``field`` is the setting's name.
 
     - ``track``: name or path (``name@reversed`` drives it the other way); None: the model's
       training track and direction.
@@ -83,28 +86,47 @@ class EvaluationSettings:
         limit = FORCED_MAX_TRIALS if self.force else CONSOLE_MAX_TRIALS
         if isinstance(self.trials, bool) or not isinstance(self.trials, int) or not 1 <= self.trials <= limit:
             hint = "" if self.force else f" (the DeepRacer console's limit; --force allows up to {FORCED_MAX_TRIALS})"
-            raise EvaluationError(f"trials must be an integer from 1 to {limit}{hint}, got {self.trials!r}")
+            raise EvaluationError(f"trials must be an integer from 1 to {limit}{hint}, got {self.trials!r}",
+                                  field="trials")
         for name in ("off_track_penalty", "crash_penalty"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise EvaluationError(f"{name.replace('_', ' ')} must be a number of seconds >= 0, got {value!r}")
+                raise EvaluationError(f"{name.replace('_', ' ')} must be a number of seconds >= 0, got {value!r}",
+                                      field=name)
         if self.resets is not None and (isinstance(self.resets, bool) or not isinstance(self.resets, int)
                                         or self.resets < 0):
-            raise EvaluationError(f"resets must be an integer >= 0 or None (unlimited), got {self.resets!r}")
+            raise EvaluationError(f"resets must be an integer >= 0 or None (unlimited), got {self.resets!r}",
+                                  field="resets")
         if not (isinstance(self.max_trial_time, (int, float)) and math.isfinite(self.max_trial_time)
                 and self.max_trial_time > 0):
-            raise EvaluationError(f"max trial time must be a positive number of seconds, got {self.max_trial_time!r}")
+            raise EvaluationError(f"max trial time must be a positive number of seconds, got {self.max_trial_time!r}",
+                                  field="max_trial_time")
         if not isinstance(self.checkpoint, str) or not self.checkpoint:
-            raise EvaluationError(f"checkpoint must be 'best', 'last' or a checkpoint name, got {self.checkpoint!r}")
+            raise EvaluationError(f"checkpoint must be 'best', 'last' or a checkpoint name, got {self.checkpoint!r}",
+                                  field="checkpoint")
         if self.physics is not None:
             from laplab.vehicle.physics import PhysicsError, resolve_physics
             try:
                 object.__setattr__(self, "physics", resolve_physics(self.physics))
             except PhysicsError as error:
-                raise EvaluationError(str(error)) from None
+                raise EvaluationError(str(error), field="physics") from None
+
+    @classmethod
+    def from_mapping(cls, data: dict[str, Any], allowed: tuple[str, ...] | None = None) -> "EvaluationSettings":
+        """Settings from a JSON body or a job's params (only the ``allowed`` names; None: all); an
+        unknown key is refused, naming it."""
+        names = allowed if allowed is not None else tuple(f.name for f in fields(cls))
+        unknown = sorted(set(data) - set(names))
+        if unknown:
+            raise EvaluationError(f"unknown evaluation setting {unknown[0]!r}: known are {', '.join(names)}",
+                                  field=unknown[0])
+        return cls(**data)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+EvaluateRequest = EvaluationSettings  # the evaluate request of every door (laplab.train.request has the others)
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ import sys
 import threading
 import time
 import traceback
-from dataclasses import asdict, fields, replace
+from dataclasses import asdict, fields
 from pathlib import Path
 
 POSES_HZ = 15.0
@@ -112,10 +112,8 @@ class PhaseFeed:
 
 
 def _train(files: JobFiles, spec: dict) -> None:
-    from laplab.train.config import TrainConfig
-    from laplab.train.jobs import clone_config
-
-    from laplab.train.jobs import create_training_in_place, resume_training
+    from laplab.train.jobs import clone_config, create_training_in_place, resume_training
+    from laplab.train.request import TrainRequest
 
     kind, name, params = spec["kind"], spec["model"], spec["params"]
     cluster = spec.get("cluster")  # a console started with --ray-address: rollout workers on Ray
@@ -127,17 +125,15 @@ def _train(files: JobFiles, spec: dict) -> None:
         trainer = resume_training(name, params.get("max_time_s"), workers=workers)
     else:
         reward_path = str(files.folder / "reward_function.py") if (files.folder / "reward_function.py").exists() else None
-        values = {k: params[k] for k in ("track", "model_metadata", "hyperparameters", "max_time_s", "max_episodes", "seed",
-                                         "vehicle", "race_type")
-                  if params.get(k) is not None}
-        if reward_path:
-            values["reward_path"] = reward_path
-        values["workers"] = workers
-        if kind == "clone":
-            config, weights = clone_config(params["source"], values)
+        given = {k: v for k, v in params.items() if k != "source"}
+        request = TrainRequest.from_mapping({**given, "reward_path": reward_path, "workers": workers})
+        if kind == "clone":  # the source's config, changed where the request says so
+            values = request.config_values()
+            changed = {*given, "workers", *(("reward_path",) if reward_path else ())} & set(values)
+            config, weights = clone_config(params["source"], {k: values[k] for k in changed})
             trainer = create_training_in_place(name, config, init_weights=weights)
         else:
-            trainer = create_training_in_place(name, replace(TrainConfig(), **values))
+            trainer = create_training_in_place(name, request.to_config())
     from laplab.jobs.supervisor import job_limits, report
     from laplab.reward.watchdog import RewardWatchdog, WatchdogLimits
     # as `laplab train` does: reward output beyond the cap goes to the model folder's log from here on
@@ -174,10 +170,9 @@ def _train(files: JobFiles, spec: dict) -> None:
 
 
 def _evaluate(files: JobFiles, spec: dict) -> None:
-    from laplab.evaluate.trials import EvaluationSettings, evaluate_model
-    params = spec["params"]
-    allowed = {f.name for f in fields(EvaluationSettings)} - {"force"}
-    settings = EvaluationSettings(**{k: v for k, v in params.items() if k in allowed})
+    from laplab.evaluate.trials import EvaluateRequest, evaluate_model
+    allowed = tuple(f.name for f in fields(EvaluateRequest) if f.name != "force")  # the console keeps 1..5 trials
+    settings = EvaluateRequest.from_mapping(spec["params"], allowed)
     files.event("started")
     result, stamp = evaluate_model(spec["model"], settings)
     files.finish("done", stamp=stamp, summary=result.to_dict().get("summary"))
@@ -196,8 +191,9 @@ def _export(files: JobFiles, spec: dict) -> None:
     """The car's tar.gz (``agent/model.pb`` + ``model_metadata.json``) or the DeepRacer console's
     import layout (as a tar.gz), built from the model's checkpoint with TensorFlow into ``export/``."""
     import tarfile
-    name, params = spec["model"], spec["params"]
-    fmt, checkpoint = params["format"], params.get("checkpoint", "best")
+    from laplab.train.request import ExportRequest
+    name, request = spec["model"], ExportRequest.from_mapping(spec["params"]).as_job()
+    fmt, checkpoint = request.format, request.checkpoint
     from laplab.export.car import CAR_SENSORS, CONSOLE_SENSORS, CarExportError, check_model_exportable
     try:  # a model the car cannot run is refused before TensorFlow and torch load (seconds each)
         check_model_exportable(name, *((CAR_SENSORS, "the DeepRacer car") if fmt == "car"

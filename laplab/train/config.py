@@ -10,6 +10,7 @@ from laplab.agents.hyperparameters import PRECISIONS, Hyperparameters, from_dict
 from laplab.env.metadata import ModelMetadata, metadata_from_dict
 from laplab.env.spec import ModelSpec, model_spec
 from laplab.errors import UserError
+from laplab.train.request import DEFAULT_MAX_TIME_S
 from laplab.sim.race_type import RaceType
 from laplab.sim.state import EpisodeParams
 from laplab.track.registry import DEFAULT_TRACK
@@ -68,7 +69,7 @@ class TrainConfig:
     reward_path: str | None = None
     model_metadata: ModelMetadata = field(default_factory=ModelMetadata)
     hyperparameters: Hyperparameters | None = None
-    max_time_s: float = 20 * 60.0
+    max_time_s: float = DEFAULT_MAX_TIME_S
     max_episodes: int | None = None
     eval_episodes: int = 3
     seed: int = 0
@@ -86,17 +87,23 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_time_s) and self.max_time_s > 0):
-            raise ConfigError(f"max time must be a positive number of seconds, got {self.max_time_s!r}")
+            raise ConfigError(f"max time must be a positive number of seconds, got {self.max_time_s!r}",
+                              field="max_time_s")
         if self.max_episodes is not None and self.max_episodes < 1:
-            raise ConfigError(f"max episodes must be >= 1, got {self.max_episodes!r}")
+            raise ConfigError(f"max episodes must be >= 1, got {self.max_episodes!r}",
+                              field="max_episodes")
         if not 1 <= self.eval_episodes <= 20:
-            raise ConfigError(f"eval episodes must be within 1..20, got {self.eval_episodes!r}")
+            raise ConfigError(f"eval episodes must be within 1..20, got {self.eval_episodes!r}",
+                              field="eval_episodes")
         if self.precision not in PRECISIONS:
-            raise ConfigError(f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
+            raise ConfigError(f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}",
+                              field="precision")
         if isinstance(self.workers, bool) or not isinstance(self.workers, int) or not 1 <= self.workers <= 1024:
-            raise ConfigError(f"workers must be an integer within 1..1024, got {self.workers!r}")
+            raise ConfigError(f"workers must be an integer within 1..1024, got {self.workers!r}",
+                              field="workers")
         if isinstance(self.tracks, str) or not all(isinstance(t, str) for t in self.tracks):
-            raise ConfigError(f"tracks must be a list of track names, got {self.tracks!r}")
+            raise ConfigError(f"tracks must be a list of track names, got {self.tracks!r}",
+                              field="tracks")
         object.__setattr__(self, "tracks", tuple(self.tracks))
         if self.tracks:
             first, reverse = parse_track_spec(self.tracks[0])
