@@ -258,9 +258,9 @@ async def create_model(body: CreateModel, request: Request, user: User = Depends
     key = _name_free(request, body.name, user)
     train, config = _check_train_inputs(body.model_dump(include=set(CREATE_FIELDS)))
     workers = _job_workers(request, body.workers, config.hyper().num_episodes_between_training)
-    check_quota(request, user, "train", values)
-    await _validate_and_claim(request, user, key, body, body.reward_function, body.track, body.model_metadata)
     params = {k: v for k, v in train.to_mapping().items() if k != "workers"}  # the console's count: _job_workers
+    check_quota(request, user, "train", params)
+    await _validate_and_claim(request, user, key, body, body.reward_function, body.track, body.model_metadata)
     job = service.submit("train", key, user.id, {**params, **workers}, reward_source=body.reward_function)
     return {**service.describe(key, viewer=user), "job": job.to_dict()}
 

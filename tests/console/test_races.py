@@ -9,8 +9,6 @@ import time
 
 import pytest
 
-from laplab.jobs.runner import models_dir
-
 
 def sign_up(console, invite_code: str, name: str, **profile) -> dict:
     answer = console.client(None).post("/api/signup", json={"invite": invite_code, "name": name,
