@@ -71,6 +71,15 @@ def _settings(data: dict) -> RaceSettings:
     except RaceError as exc:
         raise refusal(exc) from None
     check_track_name(settings.track)
+    race = settings.race()
+    if race is not None:  # as many objects or bots as fit on the track at their minimum distance
+        from laplab.sim.race_type import RaceTypeError
+        from laplab.track.registry import load_track
+        try:
+            track = load_track(settings.track)
+            race.check_track(track.length, track.name)
+        except RaceTypeError as exc:
+            raise refusal(RaceError(f"options: {str(exc).replace('--', '')}", field="options")) from None
     return settings
 
 
@@ -105,6 +114,8 @@ def _view(race: Race, user: User, request: Request) -> dict:
     out = race.to_dict(with_code=manages(race, user))
     out["owner_name"] = (request.app.state.store.user_by_id(race.owner, enabled=False) or User(0, "?", False)).name
     out["open_now"] = window_refusal(race.settings, race.closed, time.time()) is None
+    driven = race.settings.race()
+    out["race_summary"] = driven.summary() if driven is not None else "time trial"  # e.g. "object avoidance: 3 boxes..."
     return out
 
 
@@ -181,7 +192,9 @@ def _model_sensors(request: Request, key: str) -> tuple[list[str], str]:
     config = models_dir() / key / "laplab.json"
     saved = json.loads(config.read_text()) if config.is_file() else {}
     described = request.app.state.service.describe(key)
-    return list(described.get("sensor") or []), str(saved.get("race_type") or "time_trial")
+    race_type = saved.get("race_type")  # laplab.json keeps a RaceType's dict (old files: none, a time trial)
+    kind = race_type.get("kind") if isinstance(race_type, dict) else race_type
+    return list(described.get("sensor") or []), str(kind or "time_trial")
 
 
 @router.post("/{race_id}/submissions", status_code=202)

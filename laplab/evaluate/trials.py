@@ -66,6 +66,8 @@ class EvaluationSettings:
       ends as ``time_up``; 600 s is 9,000 decisions, several times the slowest sensible lap.
     - ``physics``: the car to drive (``--physics``: 4, 5, 6, ``classic`` or a car's name); None: the
       car the model trained with (:mod:`laplab.vehicle.physics`).
+    - ``race_type``: the race to drive, a :class:`laplab.sim.race_type.RaceType`'s dict (its objects and
+      bots; a race of the console sets it); None: the model's own race type.
     """
 
     track: str | None = None
@@ -81,6 +83,7 @@ class EvaluationSettings:
     force: bool = False
     max_trial_time: float = 600.0
     physics: str | None = None
+    race_type: dict | None = None
 
     def __post_init__(self) -> None:
         limit = FORCED_MAX_TRIALS if self.force else CONSOLE_MAX_TRIALS
@@ -110,6 +113,12 @@ class EvaluationSettings:
                 object.__setattr__(self, "physics", resolve_physics(self.physics))
             except PhysicsError as error:
                 raise EvaluationError(str(error), field="physics") from None
+        if self.race_type is not None:
+            from laplab.sim.race_type import RaceType, RaceTypeError
+            try:
+                object.__setattr__(self, "race_type", RaceType.from_dict(self.race_type, "race_type").to_dict())
+            except (RaceTypeError, TypeError) as error:
+                raise EvaluationError(f"race_type: {error}", field="race_type") from None
 
     @classmethod
     def from_mapping(cls, data: dict[str, Any], allowed: tuple[str, ...] | None = None) -> "EvaluationSettings":
@@ -275,6 +284,9 @@ def evaluate_model(name: str, settings: EvaluationSettings = EvaluationSettings(
     track = load_track(settings.track) if settings.track else load_track(config.track, reverse=config.reverse)
     vehicle = vehicle_preset(settings.physics or config.car)
     race = config.race_type
+    if settings.race_type is not None:  # a race's own objects and bots (a console race sets them)
+        from laplab.sim.race_type import RaceType
+        race = RaceType.from_dict(settings.race_type, "race_type")
     if race.has_objects:
         race.check_track(track.length, track.name)
         if settings.crash_penalty == EvaluationSettings.crash_penalty:  # the race's own, unless asked otherwise
@@ -287,7 +299,7 @@ def evaluate_model(name: str, settings: EvaluationSettings = EvaluationSettings(
         warnings.warn(f"no optimal lap time for track {track.name!r}: {exc}", stacklevel=2)
         optimal = standing = None
     result = evaluate_policy(policy, track, settings, vehicle=vehicle, optimal_lap_time=optimal,
-                             standing_start_lap_time=standing)
+                             standing_start_lap_time=standing, race=race)
     result = replace(result, trained_car=config.car)
     stamp, result = save_evaluation(policy.folder, result)
     return result, stamp

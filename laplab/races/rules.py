@@ -16,7 +16,7 @@ from typing import Any
 from laplab.env.metadata import ALL_SENSORS as SENSORS
 from laplab.errors import UserError
 
-RACE_TYPES = ("time_trial",)  # object_avoidance and head_to_bot slot in with their options (docs/races.md)
+RACE_TYPES = ("time_trial", "object_avoidance", "head_to_bot")  # a race's objects and bots: its ``options``
 RANKING_METHODS = ("average_consecutive", "best_lap", "total_time")
 DIRECTIONS = ("counterclockwise", "clockwise")
 MAX_LAPS = 5  # DeepRacer's evaluations: 1 to 5 trials
@@ -37,8 +37,9 @@ class RaceSettings:
     - ``laps``: laps each submission drives (1..5); ``off_track_penalty`` / ``collision_penalty``: s;
       ``max_resets``: resets per lap (None: unlimited); ``max_submissions``: per racer.
     - ``physics``: the car every submission drives (4, 5, 6 or classic; None: each model's own car).
-    - ``sensors``: the sensors a model may use (empty: any); ``options``: the race type's settings
-      (object count, bot speed...), passed to the evaluation as they are.
+    - ``sensors``: the sensors a model may use (empty: any); ``options``: the race type's settings, as
+      :class:`laplab.sim.race_type.RaceType` names them (``objects``, ``randomize_objects``,
+      ``object_positions``, ``bots``, ``bot_speed``, ``lane_change``...); every submission drives them.
     """
 
     name: str
@@ -90,6 +91,7 @@ class RaceSettings:
             _check(self.closes > self.opens, "closes", "after the race opens")
         _check(all(s in SENSORS for s in self.sensors), "sensors", f"a list of {', '.join(SENSORS)}")
         _check(isinstance(self.options, dict), "options", "an object of the race type's settings")
+        self.race()  # the race type's options are checked (and the track's room for them when it is run)
         if self.physics is not None:
             from laplab.vehicle.physics import PhysicsError, resolve_physics
             try:
@@ -113,6 +115,27 @@ class RaceSettings:
         except TypeError as exc:
             raise RaceError(f"race: {exc}") from None
 
+    def race(self):
+        """The :class:`laplab.sim.race_type.RaceType` every submission drives (its collision penalty is
+        the race's); None for a time trial. Options of another race type are refused, naming them."""
+        if self.race_type == "time_trial":
+            _check(not self.options, "options", "none for a time trial (objects and bots belong to object "
+                                                "avoidance and head-to-bot races)")
+            return None
+        from laplab.sim.race_type import RaceType, RaceTypeError
+        known = {"objects", "object_positions", "randomize_objects", "min_object_distance", "object_type"} \
+            if self.race_type == "object_avoidance" else \
+            {"bots", "bot_speed", "bot_lane", "randomize_bots", "min_bot_distance", "lane_change",
+             "lane_change_min_s", "lane_change_max_s", "lane_change_distance"}
+        unknown = sorted(set(self.options) - known)
+        kind = "an object-avoidance" if self.race_type == "object_avoidance" else "a head-to-bot"
+        _check(not unknown, "options", f"settings of {kind} race ({', '.join(sorted(known))}); "
+                                       f"{unknown[0] if unknown else ''!r} is not one")
+        try:
+            return RaceType(kind=self.race_type, collision_penalty=float(self.collision_penalty), **self.options)
+        except (RaceTypeError, TypeError, ValueError) as exc:
+            raise RaceError(f"options: {str(exc).replace('--', '')}", field="options") from None
+
     def evaluation_params(self, track_key: str) -> dict:
         """The console's evaluate job under this race's rules: consecutive laps, with a video;
         ``track_key``: the track driven in the race's direction (:func:`laplab.races.catalogue.track_key`)."""
@@ -121,6 +144,9 @@ class RaceSettings:
                   "video": True, "seed": 0, "checkpoint": "best", "max_trial_time": 180.0}
         if self.physics is not None:
             params["physics"] = self.physics
+        race = self.race()
+        if race is not None:
+            params["race_type"] = race.to_dict()
         return params
 
 

@@ -105,3 +105,20 @@ def test_the_video_camera_sees_the_boxes(wide_track):
     plain = render_camera(texture, poses[:5], FRONT_FACING_CAMERA)
     seen = render_camera(texture, poses[:5], FRONT_FACING_CAMERA, obstacles=trial_obstacles(result, 0, 5))
     assert (plain != seen).any()  # the box ahead is in the frames the video shows
+
+
+def test_an_evaluation_drives_the_race_it_is_given(tmp_path, monkeypatch):
+    """A console race's evaluation sets its own objects (EvaluationSettings.race_type), whatever the
+    model trained with; bad race settings name race_type."""
+    from laplab.evaluate.trials import EvaluationError, evaluate_model
+    from laplab.train.config import TrainConfig
+    from laplab.train.jobs import create_training
+    monkeypatch.setenv("LAPLAB_HOME", str(tmp_path / "home"))
+    create_training("plain", TrainConfig(track="oval")).lock.release()
+    race = {"kind": "object_avoidance", "objects": 2, "collision_penalty": 3.0}
+    result, _ = evaluate_model("plain", EvaluationSettings(trials=1, max_trial_time=3.0, race_type=race))
+    assert result.race_type["kind"] == "object_avoidance" and result.race_type["objects"] == 2
+    assert result.settings.crash_penalty == 3.0  # the race's collision penalty
+    with pytest.raises(EvaluationError) as refused:
+        EvaluationSettings(race_type={"kind": "drag_race"})
+    assert refused.value.field == "race_type"

@@ -29,6 +29,24 @@ def test_bad_settings_name_their_field(field, value):
     assert caught.value.field == field and str(caught.value).startswith(field)
 
 
+def test_object_avoidance_and_head_to_bot_races_drive_their_options():
+    boxes = RaceSettings(name="Boxes", track="oval", race_type="object_avoidance", collision_penalty=3.0,
+                         options={"objects": 2, "randomize_objects": True})
+    driven = boxes.evaluation_params("oval")["race_type"]
+    assert (driven["kind"], driven["objects"], driven["randomize_objects"], driven["collision_penalty"]) == \
+        ("object_avoidance", 2, True, 3.0)
+    bots = RaceSettings(name="Bots", track="oval", race_type="head_to_bot", options={"bots": 2, "bot_speed": 1.0})
+    assert bots.race().summary().startswith("head-to-bot") or "bot" in bots.race().summary()
+    assert "race_type" not in RaceSettings(name="Trial", track="oval").evaluation_params("oval")
+    for race_type, options, says in (("head_to_bot", {"bot_speed": 9.0}, "bot-speed must be within 0.1..4"),
+                                     ("object_avoidance", {"bots": 2}, "'bots' is not one"),
+                                     ("time_trial", {"objects": 3}, "none for a time trial"),
+                                     ("object_avoidance", {"objects": 13}, "objects must be an integer within 1..")):
+        with pytest.raises(RaceError, match=says) as caught:
+            RaceSettings(name="r", track="oval", race_type=race_type, options=options)
+        assert caught.value.field == "options"
+
+
 def test_unknown_setting_is_refused():
     with pytest.raises(RaceError, match="colour: not a race setting"):
         RaceSettings.from_dict({"name": "r", "track": "oval", "colour": "red"})

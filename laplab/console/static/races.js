@@ -51,12 +51,21 @@ const Races = (() => {
   async function raceEditPage(raceId) {
     const tracks = await api("GET", "/api/tracks");
     $("#track").replaceChildren(...tracks.map(t => el("option", {value: t.name}, `${t.display_name || t.name} (${t.length_m} m)`)));
+    // the race type's own settings (RaceType's names), shown for that race type only
+    const OPTIONS = {object_avoidance: ["objects", "randomize_objects"], head_to_bot: ["bots", "bot_speed", "lane_change"]};
+    const showOptions = () => { $("#oa-options").hidden = $("#race_type").value !== "object_avoidance";
+      $("#h2b-options").hidden = $("#race_type").value !== "head_to_bot"; };
+    $("#race_type").addEventListener("change", showOptions);
+    const options = () => Object.fromEntries((OPTIONS[$("#race_type").value] || []).map(k => { const n = $(`#opt-${k}`);
+      return [k, n.type === "checkbox" ? n.checked : k === "bot_speed" ? parseFloat(n.value) : parseInt(n.value, 10)]; }));
     if (raceId) {
       const r = await api("GET", `/api/races/${raceId}`);
       for (const f of FIELDS) if ($(`#${f}`)) $(`#${f}`).value = r[f] ?? "";
+      for (const [k, v] of Object.entries(r.options || {})) { const n = $(`#opt-${k}`); if (n) { if (n.type === "checkbox") n.checked = !!v; else n.value = v; } }
       $("#private").checked = r.private; $("#opens").value = local(r.opens); $("#closes").value = local(r.closes);
       $("#sensors").value = (r.sensors || []).join(",");
     }
+    showOptions();
     $("#race-form").addEventListener("submit", async ev => {
       ev.preventDefault();
       const body = {};
@@ -68,6 +77,7 @@ const Races = (() => {
       body.opens = $("#opens").value ? new Date($("#opens").value).getTime() / 1000 : null;
       body.closes = $("#closes").value ? new Date($("#closes").value).getTime() / 1000 : null;
       body.sensors = $("#sensors").value.split(",").map(s => s.trim()).filter(Boolean);
+      body.options = options();
       try {
         const r = await api(raceId ? "PUT" : "POST", raceId ? `/api/races/${raceId}` : "/api/races", body);
         location.href = `/races/${r.id}`;
@@ -89,7 +99,7 @@ const Races = (() => {
   async function racePage(raceId, manages) {
     const race = await api("GET", `/api/races/${raceId}`);
     $("#race-facts").replaceChildren(...[
-      ["Track", `${race.track} · ${race.direction}`], ["Race type", race.race_type.replace("_", " ")],
+      ["Track", `${race.track} · ${race.direction}`], ["Race type", race.race_summary || race.race_type.replace("_", " ")],
       ["Ranking", race.ranking === "average_consecutive" ? `average of ${race.consecutive_laps} consecutive laps` : RANKING[race.ranking]],
       ["Laps", race.laps], ["Off-track penalty", `${race.off_track_penalty} s`], ["Collision penalty", `${race.collision_penalty} s`],
       ["Resets per lap", race.max_resets ?? "unlimited"], ["Submissions per racer", race.max_submissions],
