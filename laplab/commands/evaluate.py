@@ -88,8 +88,8 @@ def _evaluate(args: argparse.Namespace, console: Console, store_url: str | None)
             continuous=args.continuous, seed=args.seed, stochastic=args.stochastic, video=args.video,
             force=args.force, max_trial_time=args.max_trial_time, physics=args.physics)
         result, stamp = evaluate_model(args.model, settings)
-    except EvaluationError as exc:
-        raise UserError(str(exc)) from None
+    except EvaluationError as exc:  # the setting's option names the field (trials -> --trials)
+        raise UserError(str(exc), field=f"--{exc.field.replace('_', '-')}" if exc.field else None) from None
     from laplab.store.layout import model_folder
     folder = model_folder(args.model)
     if args.json:

@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from laplab.console.auth import current_user
 from laplab.console.roles import accounts, admin_user, quotas, refusal
-from laplab.jobs.accounts import AccountError
+from laplab.jobs.accounts import AccountError, NotAllowed
 from laplab.jobs.db import StoreError, User
 from laplab.jobs.quotas import QuotaExceeded
 
@@ -74,7 +74,7 @@ def create_invite(body: NewInvite, request: Request, user: User = Depends(curren
     try:
         invite = accounts(request).create_invite(user, body.role, body.expires_in_h * 3600.0)
     except AccountError as exc:
-        raise refusal(exc, 403 if "cannot invite" in str(exc) else 400) from None
+        raise refusal(exc, 403 if isinstance(exc, NotAllowed) else 400) from None
     return {**invite, "link": f"{str(request.base_url).rstrip('/')}/join/{invite['code']}"}
 
 

@@ -38,6 +38,10 @@ class AccountError(UserError):
     """An invitation, password or profile the console refuses, with the rule it breaks."""
 
 
+class NotAllowed(AccountError):
+    """The asker's role may not do this (a 403, not a bad value)."""
+
+
 @dataclass(frozen=True)
 class Profile:
     """What leaderboards show of a racer: ``alias`` (display name), ``country`` (ISO 3166 alpha-2 or
@@ -79,7 +83,7 @@ class Accounts:
         if role not in ROLES:
             raise AccountError(f"role: {role!r} is not a role; pick one of {', '.join(ROLES)}", field="role")
         if creator.role == "racer" or (creator.role == "facilitator" and role != "racer"):
-            raise AccountError(f"role: a {creator.role} cannot invite a {role} (admins invite any role, race "
+            raise NotAllowed(f"role: a {creator.role} cannot invite a {role} (admins invite any role, race "
                                "facilitators invite racers)", field="role")
         if not (60.0 <= float(lifetime_s) <= 90 * 24 * 3600.0):
             raise AccountError("expires_in_h: an invitation lasts from 1 minute to 90 days", field="expires_in_h")

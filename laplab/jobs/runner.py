@@ -125,12 +125,13 @@ def request_stop(job_id: int) -> None:
         (folder / STOP_FILE).touch()
 
 
-def write_spec(job: Job, cluster: dict | None = None) -> Path:
-    """The job's ``spec.json``; ``cluster`` (address, workers) when its rollout workers run on Ray."""
+def write_spec(job: Job, cluster: dict | None = None, sandboxed: bool = False) -> Path:
+    """The job's ``spec.json``; ``cluster`` (address, workers) when its rollout workers run on Ray;
+    ``sandboxed``: the job runs inside bubblewrap (where the console runs every reward, whoever wrote it)."""
     folder = job_folder(job.id)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "spec.json"
-    spec = {"id": job.id, "kind": job.kind, "model": job.model, "params": job.params}
+    spec = {"id": job.id, "kind": job.kind, "model": job.model, "params": job.params, "sandboxed": bool(sandboxed)}
     if cluster is not None:
         spec["cluster"] = cluster
     path.write_text(json.dumps(spec))
@@ -155,7 +156,7 @@ class LocalProcessRunner:
     def start(self, job: Job) -> int:
         from laplab.cluster.console import CLUSTER_KINDS
         on_cluster = self.cluster is not None and job.kind in CLUSTER_KINDS
-        write_spec(job, self.cluster.to_spec() if on_cluster else None)
+        write_spec(job, self.cluster.to_spec() if on_cluster else None, self.sandbox)
         folder = job_folder(job.id)
         inside = f"{SANDBOX_HOME}/job" if self.sandbox else str(folder)
         limits = self._limits_for(job)

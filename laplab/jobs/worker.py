@@ -122,7 +122,10 @@ def _train(files: JobFiles, spec: dict) -> None:
         print(f"this console has no Ray cluster now: the job collects in-process, not with {params['workers']} "
               "rollout workers", flush=True)
     if kind == "resume":
-        trainer = resume_training(name, params.get("max_time_s"), workers=workers)
+        # an imported model's reward needs trust to run: in the console's sandbox it runs confined like
+        # every user's reward (the trust rule guards a CLI user's own account); unconfined, it does not
+        trainer = resume_training(name, params.get("max_time_s"), workers=workers,
+                                  trust_reward=bool(spec.get("sandboxed")))
     else:
         reward_path = str(files.folder / "reward_function.py") if (files.folder / "reward_function.py").exists() else None
         given = {k: v for k, v in params.items() if k != "source"}

@@ -4,6 +4,7 @@ field from the CLI, laplab.api and the worker (the console's API: tests/console/
 from __future__ import annotations
 
 import inspect
+import json
 
 import pytest
 
@@ -166,3 +167,31 @@ def test_laplab_export_checks_the_export_request(capsys):
     from laplab.cli import main
     assert main(["export", "any-model", "--checkpoint", ""]) == 2
     assert "--checkpoint must be 'best', 'last' or a checkpoint file name" in capsys.readouterr().err
+
+
+def test_a_console_resume_trusts_the_reward_only_inside_the_sandbox(tmp_path, monkeypatch):
+    """An imported model's reward runs on resume where the console confines every reward (bubblewrap),
+    and stays untrusted in an unconfined console job."""
+    import laplab.train.jobs as jobs
+    from laplab.jobs import worker
+    from laplab.jobs.db import Job
+    from laplab.jobs.runner import write_spec
+
+    asked = []
+
+    class Built(Exception):
+        pass
+
+    def capture(name, max_time_s=None, **kwargs):
+        asked.append(kwargs.get("trust_reward"))
+        raise Built
+
+    monkeypatch.setattr(jobs, "resume_training", capture)
+    monkeypatch.setenv("LAPLAB_HOME", str(tmp_path / "home"))
+    for sandboxed in (True, False):
+        job = Job(7, "resume", "imported", 1, "queued", 0.0, {}, 0.0, None, None, None, None, None, None)
+        spec = json.loads(write_spec(job, sandboxed=sandboxed).read_text())
+        assert spec["sandboxed"] is sandboxed
+        with pytest.raises(Built):
+            worker._train(worker.JobFiles(tmp_path), spec)
+    assert asked == [True, False]
