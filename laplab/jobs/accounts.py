@@ -70,10 +70,7 @@ class Accounts:
 
     def __init__(self, store: JobStore):
         self.store = store
-        with store.lock:
-            for statement in _SCHEMA.strip().split(";"):
-                if statement.strip():
-                    store.execute(statement)
+        store.apply_schema(_SCHEMA)
 
     # -- invitations -------------------------------------------------------------------------------
 

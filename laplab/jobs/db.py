@@ -154,6 +154,13 @@ class JobStore:
         :mod:`laplab.jobs.accounts`, :mod:`laplab.jobs.quotas`, :mod:`laplab.races.store`)."""
         return self._execute(sql, args)
 
+    def apply_schema(self, script: str) -> None:
+        """Run ``script``'s ``;``-separated statements (a module's ``CREATE ... IF NOT EXISTS``) under the lock."""
+        with self.lock:
+            for statement in script.strip().split(";"):
+                if statement.strip():
+                    self._execute(statement, ())
+
     def select(self, sql: str, args: tuple = ()) -> list[sqlite3.Row]:
         return self._rows(sql, args)
 

@@ -74,10 +74,7 @@ class Quotas:
 
     def __init__(self, store: JobStore):
         self.store = store
-        with store.lock:
-            for statement in _SCHEMA.strip().split(";"):
-                if statement.strip():
-                    store.execute(statement)
+        store.apply_schema(_SCHEMA)
 
     def settings(self) -> dict:
         saved = {r["key"]: r["value"] for r in self.store.select("SELECT * FROM quota_settings")}

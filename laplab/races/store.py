@@ -64,10 +64,7 @@ def new_code() -> str:
 class RaceStore:
     def __init__(self, store: JobStore):
         self.store = store
-        with store.lock:
-            for statement in _SCHEMA.strip().split(";"):
-                if statement.strip():
-                    store.execute(statement)
+        store.apply_schema(_SCHEMA)
 
     def create(self, owner: User, settings: RaceSettings) -> Race:
         cur = self.store.execute("INSERT INTO races(owner, settings, code, created) VALUES (?,?,?,?)",
