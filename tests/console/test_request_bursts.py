@@ -90,7 +90,7 @@ def test_a_status_change_is_never_hidden_by_a_build_that_started_before_it(app_a
 
 
 def test_requests_with_a_new_token_arriving_together_share_one_argon2_check(app_and_service, monkeypatch):
-    from laplab.jobs import db
+    from laplab.jobs import users as db  # the accounts' half of the job store
     _, service = app_and_service
     real_hasher, checks = db._hasher, []
 
