@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from laplab.jobs.users import ROLES, StoreError, User, UserTable  # noqa: F401 (ROLES, StoreError, User: imported from here)
 from laplab.settings import current_settings
 
 JOB_KINDS = ("train", "clone", "evaluate", "resume", "export")
@@ -45,8 +46,6 @@ CREATE INDEX IF NOT EXISTS jobs_model ON jobs(model);
 CREATE INDEX IF NOT EXISTS jobs_status ON jobs(status);
 """
 
-
-from laplab.jobs.users import ROLES, StoreError, User, UserTable, _sha256, _user  # noqa: F401 (their home was here)
 
 @dataclass(frozen=True)
 class Job:
