@@ -102,9 +102,13 @@ def test_two_track_job_trains_on_policy_and_writes_each_workers_simtrace(local_r
 def test_dead_workers_are_restarted_and_the_job_resumes_with_one_worker(local_ray, tmp_path):
     marker = tmp_path / "crashed-once"
     path = reward_file(tmp_path, f"""\
-        if IN_WORKER() and not os.path.exists({str(marker)!r}):
-            open({str(marker)!r}, "w").close()
-            os._exit(3)  # the reward function takes its worker's process down, once
+        if IN_WORKER():
+            try:  # O_EXCL: of two workers asking at once, exactly one creates the marker
+                os.close(os.open({str(marker)!r}, os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+            except FileExistsError:
+                pass
+            else:
+                os._exit(3)  # the reward function takes its worker's process down, once
         """)
     trainer = create_training("faults", small_config(reward_path=path, workers=2, max_episodes=8))
     notices, killed, polls = [], [], []
