@@ -1,4 +1,4 @@
-"""One request type per job: the options of a training, an evaluation and an export, their
+"""One request type per job: the options of a training, an evaluation, an export and a race, their
 defaults, their ranges and their error messages in one place.
 
 Every door builds the same request: ``laplab train`` from its options, the console's API from its
@@ -24,13 +24,14 @@ from laplab.errors import UserError
 DEFAULT_MAX_TIME_S = 20 * 60.0  # the one default training time of every door (CLI, console, laplab.api)
 MAX_WORKERS = 1024
 
-# request field -> the `laplab train` option that sets it
+# request field -> the `laplab train` (or `laplab race`, `laplab export`) option that sets it
 CLI_OPTIONS = {"name": "--name", "track": "--track", "tracks": "--track", "reward_path": "--reward",
                "model_metadata": "--model-metadata", "hyperparameters": "--hyperparameters",
                "max_time_s": "--max-time", "max_episodes": "--max-episodes", "seed": "--seed",
                "physics": "--physics", "race_type": "--race-type", "workers": "--workers",
                "domain_randomization": "--domain-randomization", "precision": "--precision",
-               "format": "--format", "checkpoint": "--checkpoint"}
+               "format": "--format", "checkpoint": "--checkpoint",
+               "laps": "--laps", "video": "--video"}  # the last two: `laplab race`'s
 
 
 def as_cli_error(error: UserError) -> UserError:
@@ -244,3 +245,65 @@ class ExportRequest:
 
     def to_mapping(self) -> dict[str, Any]:
         return asdict(self)
+
+
+RACE_LAPS = (1, 20)
+RACE_MAX_TIME_S = (1.0, 3600.0)
+
+
+@dataclass(frozen=True)
+class RaceRequest:
+    """A head-to-model race (``laplab race``, the console's race job): ``models`` (two or more different
+    model names; the first is the home model, whose track is the default), ``track`` (a track name,
+    ``name@reversed`` the other way; None: the first model's track and direction), ``laps`` (1..20),
+    ``max_time_s`` (simulated seconds after which the race ends, 1..3600), ``checkpoint`` (``best``
+    or ``last`` of every model) and ``video`` (also an MP4 of the top-down view)."""
+
+    models: tuple[str, ...] = ()
+    track: str | None = None
+    laps: int = 3
+    max_time_s: float = 180.0
+    checkpoint: str = "best"
+    video: bool = False
+
+    def __post_init__(self) -> None:
+        if isinstance(self.models, str) or not all(isinstance(m, str) and m for m in self.models):
+            raise RequestError(f"models must be a list of model names, got {self.models!r}", field="models")
+        object.__setattr__(self, "models", tuple(self.models))
+        if len(self.models) < 2 or len(set(self.models)) != len(self.models):
+            raise RequestError("name two or more different models: laplab race MODEL_A MODEL_B", field="models")
+        if not _is_int(self.laps) or not RACE_LAPS[0] <= self.laps <= RACE_LAPS[1]:
+            raise RequestError(f"laps must be an integer within {RACE_LAPS[0]}..{RACE_LAPS[1]}, got {self.laps!r}",
+                               field="laps")
+        low, high = RACE_MAX_TIME_S
+        if isinstance(self.max_time_s, bool) or not isinstance(self.max_time_s, (int, float)) \
+                or not low <= self.max_time_s <= high:
+            raise RequestError(f"max time must be within {low:g}..{high:g} simulated seconds, got "
+                               f"{self.max_time_s!r}", field="max_time_s")
+        object.__setattr__(self, "max_time_s", float(self.max_time_s))
+        if self.checkpoint not in ("best", "last"):
+            raise RequestError(f"checkpoint must be 'best' or 'last', got {self.checkpoint!r}", field="checkpoint")
+        if self.track is not None and (not isinstance(self.track, str) or not self.track):
+            raise RequestError(f"track must be a track name, got {self.track!r}", field="track")
+        if not isinstance(self.video, bool):
+            raise RequestError(f"video must be true or false, got {self.video!r}", field="video")
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any]) -> "RaceRequest":
+        """A request from a JSON body or a job's params; None values take the defaults; an unknown key
+        is refused, naming it."""
+        data = {k: v for k, v in dict(data).items() if v is not None}
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise RequestError(f"unknown race option {unknown[0]!r}: known are {', '.join(sorted(names))}",
+                               field=unknown[0])
+        if "models" in data and not isinstance(data["models"], (list, tuple)):
+            raise RequestError(f"models must be a list of model names, got {data['models']!r}", field="models")
+        return cls(**data)
+
+    def to_mapping(self) -> dict[str, Any]:
+        """The request as JSON types (a job's params); :meth:`from_mapping` reads it back."""
+        out = asdict(self)
+        out["models"] = list(self.models)
+        return {k: v for k, v in out.items() if v is not None}
