@@ -6,6 +6,7 @@ Inside the sandbox ``$LAPLAB_HOME`` is ``/tmp/laplab``, on a fresh tmpfs holding
     /tmp/laplab/job            the job's folder (spec, log, events, poses, result)       read-write
     /tmp/laplab/models/NAME    the model the job writes                                   read-write
     /tmp/laplab/models/SOURCE  the model a clone starts from                              read-only
+    /tmp/laplab/models/RIVAL   a head-to-model race's opponent (its model: read-only too) read-only
     /tmp/laplab/tracks         imported tracks                                            read-only
     /tmp/laplab/cache          this owner's race-line cache (never shared between users)  read-write
 

@@ -21,7 +21,7 @@ from typing import Any
 from laplab.jobs.users import ROLES, StoreError, User, UserTable  # noqa: F401 (ROLES, StoreError, User: imported from here)
 from laplab.settings import current_settings
 
-JOB_KINDS = ("train", "clone", "evaluate", "resume", "export")
+JOB_KINDS = ("train", "clone", "evaluate", "resume", "export", "duel")  # duel: a head-to-model race
 JOB_STATUSES = ("queued", "running", "stopping", "done", "failed", "interrupted")
 ACTIVE_STATUSES = ("queued", "running", "stopping")
 

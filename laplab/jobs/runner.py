@@ -63,6 +63,8 @@ def wall_limit_s(job: Job, margin_s: float) -> float:
         budget = float(job.params.get("trials") or 3) * float(job.params.get("max_trial_time") or 600.0)
     elif job.kind == "export":
         budget = 0.0
+    elif job.kind == "duel":  # simulated seconds: the wall clock runs slower only when the machine is busy
+        budget = float(job.params.get("max_time_s") or 180.0)
     else:
         budget = float(job.params.get("max_time_s") or 0.0)
         if budget <= 0 or not math.isfinite(budget):
@@ -89,7 +91,7 @@ def owner_cache(owner: int) -> Path:
     return current_settings().sandbox_dir / f"user-{owner}" / "cache"
 
 
-READ_ONLY_KINDS = ("export",)
+READ_ONLY_KINDS = ("export", "duel")
 
 
 def job_mounts(job: Job) -> Mounts:
@@ -99,8 +101,11 @@ def job_mounts(job: Job) -> Mounts:
     target.mkdir(parents=True, exist_ok=True)  # train/clone start in an empty, pre-made folder
     writable = {str(folder): f"{SANDBOX_HOME}/job"}
     readonly = {}
-    model_view = readonly if job.kind in READ_ONLY_KINDS else writable  # an export only reads its model
+    model_view = readonly if job.kind in READ_ONLY_KINDS else writable  # an export or a race only reads its model
     model_view[str(target.resolve())] = f"{SANDBOX_HOME}/models/{job.model}"
+    if job.kind == "duel":  # a head-to-model race: its opponents, read-only (the console checked who may race them)
+        for opponent in job.params.get("models", [])[1:]:
+            readonly[str((models_dir() / opponent).resolve())] = f"{SANDBOX_HOME}/models/{opponent}"
     cache = owner_cache(job.owner)
     cache.mkdir(parents=True, exist_ok=True)
     from laplab.jobs.warmup import seed

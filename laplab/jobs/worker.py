@@ -1,5 +1,5 @@
 """``python -m laplab.jobs.worker JOB_FOLDER``: run one console job (train, resume, clone, evaluate,
-export for the car).
+export for the car, a head-to-model race).
 
 The worker reads ``spec.json`` from its folder, runs the job with laplab's library calls, and reports
 only through files there (it cannot reach the database): ``events.jsonl`` gets one line per
@@ -181,6 +181,19 @@ def _evaluate(files: JobFiles, spec: dict) -> None:
     files.finish("done", stamp=stamp, summary=result.to_dict().get("summary"))
 
 
+def _duel(files: JobFiles, spec: dict) -> None:
+    """A head-to-model race (:class:`~laplab.train.request.RaceRequest`), the same code as ``laplab
+    race``: its race.json, top-down picture (and video) go to the job folder's ``race/``."""
+    from laplab.evaluate.race_run import run_model_race
+    from laplab.train.request import RaceRequest
+    request = RaceRequest.from_mapping(spec["params"])
+    if request.models[0] != spec["model"]:
+        raise ValueError(f"a race job of {spec['model']!r} races {request.models[0]!r} first")
+    files.event("started", models=list(request.models))
+    result = run_model_race(request, files.folder / "race")
+    files.finish("done", order=[r.name for r in result.racers], duration=float(result.clock[-1]))
+
+
 EXPORT_FORMATS = ("car", "console")
 TENSORFLOW_MISSING = ("the car's format needs TensorFlow on the console's machine ({}): install it there with "
                       "`pip install 'laplab[deepracer]'` (tensorflow-cpu, openvino) and restart `laplab serve`.")
@@ -245,6 +258,8 @@ def main(argv: list[str] | None = None) -> int:
             _evaluate(files, spec)
         elif spec["kind"] == "export":
             _export(files, spec)
+        elif spec["kind"] == "duel":
+            _duel(files, spec)
         else:
             _train(files, spec)
     except (*user_error_types(), EvaluationError, ExportJobError, MemoryError) as exc:

@@ -350,7 +350,7 @@ const Console = (() => {
     const events = new EventSource(`/api/models/${name}/events`);
     events.addEventListener("iteration", ev => { const r = JSON.parse(ev.data); if (!rows.length || rows[rows.length - 1].iteration < r.iteration) rows.push(r); $("#stat-progress").textContent = `${fmt(r.progress, 0)} %`; renderRows();
       if ((model.workers || []).length || model.rollout_workers) api("GET", `/api/models/${name}`).then(m => { model.workers = m.workers; renderWorkers(); }).catch(() => {}); });
-    events.addEventListener("status", ev => { const s = JSON.parse(ev.data); if (s.status) setStatus(["queued", "training", "stopping", "ready", "failed", "interrupted", "stopped"].includes(s.status) && !["evaluate", "export"].includes(s.kind) ? (s.status === "stopped" ? model.status : s.status) : model.status); refresh(); loadEvaluations(); });
+    events.addEventListener("status", ev => { const s = JSON.parse(ev.data); if (s.status) setStatus(["queued", "training", "stopping", "ready", "failed", "interrupted", "stopped"].includes(s.status) && !["evaluate", "export", "duel"].includes(s.kind) ? (s.status === "stopped" ? model.status : s.status) : model.status); refresh(); loadEvaluations(); });
     events.addEventListener("poses", ev => live.update(JSON.parse(ev.data)));
     const phases = {collect: ["collecting", "episodes"], learn: ["learning", "gradient steps"], evaluate: ["evaluating", "laps"]};
     events.addEventListener("phase", ev => { const p = JSON.parse(ev.data), [verb, unit] = phases[p.phase] || [p.phase, ""];
