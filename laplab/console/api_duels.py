@@ -164,7 +164,8 @@ def duel_view(request: Request, job: Job, viewer: User) -> dict:
     keys = list(job.params.get("models", []))
     names = {k: service.handle(k, owners.get(k), viewer) for k in keys}
     home = names.get(job.model, job.model)
-    colours = ["#%02x%02x%02x" % DEFAULT_RENDER.car_colors[i % len(DEFAULT_RENDER.car_colors)] for i in range(len(keys))]
+    palette = DEFAULT_RENDER.car_colors
+    colours = ["#" + "".join(f"{c:02x}" for c in palette[i % len(palette)]) for i in range(len(keys))]
     out = {"id": job.id, "status": DUEL_STATUS.get(job.status, "failed"), "models": [names[k] for k in keys],
            "colours": colours, "track": job.params.get("track"), "laps": job.params.get("laps"),
            "max_time_s": job.params.get("max_time_s"), "created": job.created, "finished": job.finished,
