@@ -97,7 +97,8 @@ def evaluation_video(name: str, stamp: str, request: Request, user: User = Depen
 @router.get("/models/{name}/events")
 async def model_events(name: str, request: Request, user: User = Depends(current_user)) -> StreamingResponse:
     """Server-sent events: ``status`` on each status change, ``iteration`` per training iteration,
-    ``poses`` (the cars on the track) up to 15 times a second while a job drives."""
+    ``poses`` (the cars on the track, and a race's bots) up to 15 times a second while a job drives,
+    ``obstacles`` (a race's boxes) when the stream opens and when they change."""
     name = own_model(request, name, user)
     service = _service(request)
     stream = service.hub.stream(name)
@@ -106,7 +107,7 @@ async def model_events(name: str, request: Request, user: User = Depends(current
         wake = asyncio.Event()
         stream.waiters.add(wake)
         try:
-            seen, poses_seen = stream.seq, stream.poses_seq
+            seen, poses_seen, obstacles_seen = stream.seq, stream.poses_seq, 0  # the race's boxes: sent at once
             model = await run_in_threadpool(service.describe, name)
             yield sse_message("status", {"status": model["status"], "progress": model["progress"]})
             last_sent = last_check = time.monotonic()
@@ -117,6 +118,10 @@ async def model_events(name: str, request: Request, user: User = Depends(current
                         if seq > seen:
                             yield text
                     seen = stream.seq
+                    last_sent = time.monotonic()
+                if stream.obstacles_seq > obstacles_seen:
+                    obstacles_seen = stream.obstacles_seq
+                    yield stream.obstacles_text
                     last_sent = time.monotonic()
                 if stream.poses_seq > poses_seen and stream.poses is not None:
                     poses_seen = stream.poses_seq

@@ -22,6 +22,8 @@ class ModelStream:
     poses: dict | None = None
     poses_text: str = ""  # the poses as an SSE message, written once for every stream
     poses_seq: int = 0
+    obstacles_text: str = ""  # the race's standing obstacles (boxes) as an SSE message, sent once per stream
+    obstacles_seq: int = 0
     waiters: set = field(default_factory=set)  # asyncio.Event of each open stream, set on news
 
 
@@ -50,6 +52,14 @@ class EventHub:
         stream = self.stream(model)
         stream.poses, stream.poses_text = poses, sse_message("poses", poses)
         stream.poses_seq += 1
+        self._wake(stream)
+
+    def set_obstacles(self, model: str, obstacles: dict) -> None:
+        """The race's standing obstacles (``{"seq", "boxes": [[x, y, yaw, half_length, half_width,
+        kind], ...]}``): every open stream sends them once, a new one when it opens."""
+        stream = self.stream(model)
+        stream.obstacles_text = sse_message("obstacles", obstacles)
+        stream.obstacles_seq += 1
         self._wake(stream)
 
     def _wake(self, stream: ModelStream) -> None:

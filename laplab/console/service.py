@@ -114,7 +114,7 @@ class ConsoleService:
         self.hub = EventHub()
         self.catalog = ModelCatalog()
         self._event_offsets: dict[int, int] = {}
-        self._poses_mtime: dict[int, int] = {}
+        self._poses_mtime: dict[tuple[int, str], int] = {}  # (job, poses.json / obstacles.json) -> mtime
         self.interrupted_at_start = store.interrupt_running()
         self._list_cache: dict[int, tuple[float, bytes]] = {}
         self._list_lock = threading.Lock()
@@ -352,16 +352,17 @@ class ConsoleService:
                     self._on_event(job, json.loads(line))
         except (OSError, ValueError):
             pass
-        poses = folder / "poses.json"
-        try:
-            mtime = poses.stat().st_mtime_ns
-        except OSError:
-            return
-        if mtime != self._poses_mtime.get(job.id):
-            self._poses_mtime[job.id] = mtime
-            document = _read_json(poses)
-            if document:
-                self.hub.set_poses(job.model, document)
+        for name, publish in (("obstacles.json", self.hub.set_obstacles), ("poses.json", self.hub.set_poses)):
+            path = folder / name  # the race's boxes (rewritten when they change), the cars (15 Hz)
+            try:
+                mtime = path.stat().st_mtime_ns
+            except OSError:
+                continue
+            if mtime != self._poses_mtime.get((job.id, name)):
+                self._poses_mtime[(job.id, name)] = mtime
+                document = _read_json(path)
+                if document:
+                    publish(job.model, document)
 
     def _on_event(self, job: Job, event: dict) -> None:
         if event.get("type") == "iteration":
@@ -398,7 +399,8 @@ class ConsoleService:
         self.store.update_job(job_id, status=status, finished=time.time(), error=error, result=result or None,
                               progress=100.0 if status == "done" else job.progress)
         self._event_offsets.pop(job_id, None)
-        self._poses_mtime.pop(job_id, None)
+        self._poses_mtime.pop((job_id, "poses.json"), None)
+        self._poses_mtime.pop((job_id, "obstacles.json"), None)
         target = models_dir() / job.model
         if job.kind in ("train", "clone") and target.is_dir() and not any(target.iterdir()):
             target.rmdir()  # validation failed before anything was written

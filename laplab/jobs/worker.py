@@ -30,6 +30,7 @@ class JobFiles:
         self.folder = folder
         self.events = folder / "events.jsonl"
         self.poses = folder / "poses.json"
+        self.obstacles = folder / "obstacles.json"
         self.result = folder / "result.json"
         self.stop_requested = threading.Event()
         self._stop_file = folder / "stop"
@@ -61,6 +62,11 @@ class JobFiles:
         temporary.write_text(json.dumps(document))
         temporary.replace(self.poses)
 
+    def write_obstacles(self, document: dict) -> None:
+        temporary = self.obstacles.with_suffix(".tmp")
+        temporary.write_text(json.dumps(document))
+        temporary.replace(self.obstacles)
+
     def finish(self, status: str, **data) -> None:
         temporary = self.result.with_suffix(".tmp")
         temporary.write_text(json.dumps({"status": status, "t": time.time(), **data}))
@@ -69,7 +75,11 @@ class JobFiles:
 
 class LiveFeed:
     """A trainer listener for the console's live view: the training cars' poses (model origins, x m,
-    y m, yaw rad) at up to 15 Hz and, for camera models, car 0's grey camera frame at 2 Hz."""
+    y m, yaw rad) at up to 15 Hz and, for camera models, car 0's grey camera frame at 2 Hz (with its
+    race's boxes and bots). In a race with obstacles, the poses carry the driving ones (``objects``:
+    head-to-bot's bots, each with the index of the car whose episode it drives in) and
+    ``obstacles.json`` the standing ones (boxes), rewritten only when they change
+    (:func:`laplab.sim.obstacles.footprint_rows`)."""
 
     def __init__(self, files: JobFiles, trainer):
         self.files = files
@@ -80,23 +90,32 @@ class LiveFeed:
             self.track = trainer.track
             self._texture = None
         self._last_pose_time = self._last_camera_time = 0.0
-        self._seq = 0
+        self._seq = self._obstacles_seq = 0
+        self._standing = None
 
     def on_poses(self, frame) -> None:
         now = time.monotonic()
         if now - self._last_pose_time >= 1.0 / POSES_HZ:
             self._last_pose_time = now
             self._seq += 1
-            self.files.write_poses({"seq": self._seq, "t": time.time(), "evaluation": bool(frame.evaluation),
-                                    "cars": [[round(float(x), 3), round(float(y), 3), round(float(h), 3)]
-                                             for x, y, h in frame.poses]})
+            document = {"seq": self._seq, "t": time.time(), "evaluation": bool(frame.evaluation),
+                        "cars": [[round(float(x), 3), round(float(y), 3), round(float(h), 3)]
+                                 for x, y, h in frame.poses]}
+            if frame.obstacles is not None:
+                from laplab.sim.obstacles import footprint_rows
+                standing, document["objects"] = footprint_rows(frame.obstacles, frame.obstacles_move)
+                if standing != self._standing:
+                    self._standing, self._obstacles_seq = standing, self._obstacles_seq + 1
+                    self.files.write_obstacles({"seq": self._obstacles_seq, "boxes": standing})
+            self.files.write_poses(document)
         if self.camera is not None and now - self._last_camera_time >= 1.0 / CAMERA_HZ:
             self._last_camera_time = now
             from laplab.sensors.camera import render_camera
             if self._texture is None:
                 from laplab.sensors.look import texture_for_track
                 self._texture = texture_for_track(self.track)
-            self.files.write_camera(render_camera(self._texture, frame.poses[:1], self.camera)[0])
+            obstacles = frame.obstacles.rows([0]) if frame.obstacles is not None else None
+            self.files.write_camera(render_camera(self._texture, frame.poses[:1], self.camera, obstacles=obstacles)[0])
 
 
 class PhaseFeed:

@@ -49,3 +49,29 @@ def no_obstacles(num_cars: int, slots: int = 0) -> Obstacles:
     shape = (int(num_cars), int(slots))
     return Obstacles(*(np.zeros(shape, dtype=np.int64 if name == "kind" else np.float64)
                        for name in Obstacles._fields))
+
+
+def footprint_rows(obstacles: Obstacles, moving: bool, digits: int = 3,
+                   limit: int = 512) -> tuple[list[list[float]], list[list[float]]]:
+    """The obstacles as the console's live view draws them: ``(standing, driving)``.
+
+    ``standing``: the distinct obstacles that stand (boxes; parked bot cars) over every car's slots,
+    each ``[x, y, yaw, half_length, half_width, kind]`` (m, rad; rounded to ``digits``): cars of a fixed
+    placement share one set, so it is sent once; ``driving`` (when ``moving``, head-to-bot's bots and
+    other models' cars): ``[car, x, y, yaw, half_length, half_width, kind]`` for every occupied slot of
+    every car, ``car`` the index of the car whose episode it drives in. At most ``limit`` rows each."""
+    kind = np.asarray(obstacles.kind)
+    columns = np.stack([np.asarray(f, dtype=np.float64) for f in (obstacles.x, obstacles.y, obstacles.yaw,
+                                                                   obstacles.half_length, obstacles.half_width)], -1)
+    columns = np.round(columns, digits)
+    drives = (kind == MODEL_CAR) | (moving & (kind == BOT_CAR))
+    standing, driving, seen = [], [], set()
+    for car, slot in zip(*np.nonzero((kind != EMPTY) & ~drives)):
+        row = (*columns[car, slot].tolist(), int(kind[car, slot]))
+        if row not in seen and len(standing) < limit:
+            seen.add(row)
+            standing.append(list(row))
+    for car, slot in zip(*np.nonzero(drives)):
+        if len(driving) < limit:
+            driving.append([int(car), *columns[car, slot].tolist(), int(kind[car, slot])])
+    return standing, driving

@@ -114,12 +114,16 @@ class PhaseProgress:
 class PosesFrame:
     """The cars of the collection after one step: ``poses`` (N, 3) x m, y m, yaw rad of the model
     origins, and ``sim_time`` (s since this iteration's collection began); ``evaluation``: the cars are
-    the iteration's evaluation laps (greedy policy), not its training episodes."""
+    the iteration's evaluation laps (greedy policy), not its training episodes; ``obstacles``: each
+    car's race obstacles (a :class:`laplab.sim.obstacles.Obstacles` of (N, K) arrays: boxes, bots),
+    None in a time trial; ``obstacles_move``: they drive (head-to-bot's bots), else they stand."""
 
     iteration: int
     poses: np.ndarray
     sim_time: float
     evaluation: bool = False
+    obstacles: Any = None
+    obstacles_move: bool = False
 
 
 class TrainerListener(Protocol):

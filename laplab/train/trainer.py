@@ -161,21 +161,25 @@ class Trainer:
             if handler is not None:
                 handler(payload)
 
-    def _poses_emitter(self, evaluation: bool = False):
+    def _poses_emitter(self, evaluation: bool = False, sim=None):
         """``emit(poses, sim_time)``: the running collection's (or evaluation's) cars as a
-        :class:`PosesFrame` to the listeners; None when none listens (no frame is then made)."""
+        :class:`PosesFrame` to the listeners, with ``sim``'s race obstacles (boxes, bots) when it has
+        them; None when none listens (no frame is then made)."""
         if not any(getattr(listener, "on_poses", None) is not None for listener in self._listeners):
             return None
         iteration = self.iteration + (0 if evaluation else 1)  # evaluation runs after the iteration's count
+        field = getattr(sim, "field", None)
 
         def emit(poses, sim_time) -> None:
-            self._emit("on_poses", PosesFrame(iteration, poses, sim_time, evaluation))
+            self._emit("on_poses", PosesFrame(iteration, poses, sim_time, evaluation,
+                                              obstacles=field.obstacles if field is not None else None,
+                                              obstacles_move=bool(field is not None and field.moving)))
         return emit
 
     def _poses_hook(self, started: float):
         """The collection's per-step hook: poses for those who listen (none copied otherwise) and,
         about once a second, the episodes done so far (:class:`PhaseProgress`)."""
-        emit_poses = self._poses_emitter()
+        emit_poses = self._poses_emitter(sim=self.sim)
         total = self.sim.num_cars
         self._progress(started, "collect", 0, total, 0, force=True)
 
@@ -235,7 +239,7 @@ class Trainer:
         if self.evaluator is not None:  # every track of a multi-track job (laplab.cluster)
             return self.evaluator.evaluate(self._policy(True))
         starts = np.arange(self.config.eval_episodes) / self.config.eval_episodes
-        hook = emit_poses = self._poses_emitter(evaluation=True)  # the live view shows the laps too
+        hook = emit_poses = self._poses_emitter(evaluation=True, sim=self.eval_sim)  # the live view shows the laps too
         if started is not None:
             total = self.eval_sim.num_cars
             self._progress(started, "evaluate", 0, total, force=True)

@@ -247,7 +247,7 @@ const Console = (() => {
     line(rows.map(r => r.eval_progress), "#1d8102", v => pad.t + ph * (1 - v / 100));
   }
   function liveView(canvas) {
-    const c = canvas.getContext("2d"); let outline = null, box = null, cars = [], evaluation = false;
+    const c = canvas.getContext("2d"); let outline = null, box = null, cars = [], evaluation = false, boxes = [], objects = [];
     const fit = () => { const pts = outline.outer.concat(outline.inner); const xs = pts.map(p => p[0]), ys = pts.map(p => p[1]);
       const minx = Math.min(...xs), maxx = Math.max(...xs), miny = Math.min(...ys), maxy = Math.max(...ys);
       const s = Math.min((canvas.width - 30) / (maxx - minx), (canvas.height - 30) / (maxy - miny));
@@ -261,13 +261,22 @@ const Console = (() => {
       c.strokeStyle = "#fff"; c.lineWidth = 1.5;
       for (const b of [outline.outer, outline.inner]) { c.beginPath(); b.forEach((p, i) => i ? c.lineTo(...P(p)) : c.moveTo(...P(p))); c.closePath(); c.stroke(); }
       c.setLineDash([6, 6]); c.strokeStyle = "#ffd36b"; c.beginPath(); outline.center.forEach((p, i) => i ? c.lineTo(...P(p)) : c.moveTo(...P(p))); c.stroke(); c.setLineDash([]);
+      // a race's obstacles as their footprints: boxes brown (#7b614f), bot cars grey-blue, other models' cars
+      // violet; a driving one is outlined in the colour of the car whose episode it drives in
+      const obstacle = ([x, y, yaw, hl, hw, kind], outline) => { const [px, py] = P([x, y]); c.save(); c.translate(px, py); c.rotate(-yaw);
+        c.fillStyle = {1: "#7b614f", 2: "#5a6e8c", 3: "#8c50aa"}[kind] || "#7b614f"; c.fillRect(-hl * box.s, -hw * box.s, 2 * hl * box.s, 2 * hw * box.s);
+        if (outline) { c.strokeStyle = outline; c.lineWidth = 1.5; c.strokeRect(-hl * box.s, -hw * box.s, 2 * hl * box.s, 2 * hw * box.s); }
+        c.restore(); };
+      boxes.forEach(b => obstacle(b, null));
+      objects.forEach(([car, ...o]) => obstacle(o, evaluation ? "#1d8102" : ["#ff9900", "#7cc6fe", "#f25f5c", "#c792ea"][car % 4]));
       cars.forEach(([x, y, yaw], i) => { const [px, py] = P([x, y]); c.save(); c.translate(px, py); c.rotate(-yaw);
         c.fillStyle = evaluation ? "#1d8102" : ["#ff9900", "#7cc6fe", "#f25f5c", "#c792ea"][i % 4]; c.fillRect(-9, -5, 18, 10);
         c.fillStyle = "#16191f"; c.fillRect(5, -4, 4, 8); c.restore(); });
     };
     return {
       async setTrack(name) { try { outline = await api("GET", `/api/tracks/${encodeURIComponent(name.replace("@reversed", ""))}/outline`); fit(); } catch (e) { outline = null; } draw(); },
-      update(doc) { cars = doc.cars; evaluation = doc.evaluation; canvas.dataset.frames = String(+(canvas.dataset.frames || 0) + 1);
+      setObstacles(doc) { boxes = doc.boxes || []; canvas.dataset.boxes = String(boxes.length); draw(); },
+      update(doc) { cars = doc.cars; evaluation = doc.evaluation; objects = doc.objects || []; canvas.dataset.frames = String(+(canvas.dataset.frames || 0) + 1);
         const note = $("#live-note");  // what the cars are
         if (note) note.textContent = doc.evaluation
           ? `Evaluation laps (green): ${cars.length === 1 ? "the car" : `${cars.length} cars`} driving the model's greedy policy${doc.trial ? `, trial ${doc.trial}` : ""}.`
@@ -352,6 +361,7 @@ const Console = (() => {
       if ((model.workers || []).length || model.rollout_workers) api("GET", `/api/models/${name}`).then(m => { model.workers = m.workers; renderWorkers(); }).catch(() => {}); });
     events.addEventListener("status", ev => { const s = JSON.parse(ev.data); if (s.status) setStatus(["queued", "training", "stopping", "ready", "failed", "interrupted", "stopped"].includes(s.status) && !["evaluate", "export", "duel"].includes(s.kind) ? (s.status === "stopped" ? model.status : s.status) : model.status); refresh(); loadEvaluations(); });
     events.addEventListener("poses", ev => live.update(JSON.parse(ev.data)));
+    events.addEventListener("obstacles", ev => live.setObstacles(JSON.parse(ev.data)));
     const phases = {collect: ["collecting", "episodes"], learn: ["learning", "gradient steps"], evaluate: ["evaluating", "laps"]};
     events.addEventListener("phase", ev => { const p = JSON.parse(ev.data), [verb, unit] = phases[p.phase] || [p.phase, ""];
       if (!["training", "queued", "stopping"].includes($("#status").dataset.status)) return;  // late news of an ended job
