@@ -277,14 +277,23 @@ class RayCollector:
 
     # -- one iteration ---------------------------------------------------------------------------
 
-    def _read_poses(self, version: int) -> tuple[np.ndarray, float] | None:
-        """The cars on the first track now, (N, 3) x m, y m, yaw rad in worker order, and the latest
-        sim time (s) posted; None when no worker has posted (or the board is gone)."""
+    def _read_poses(self, version: int) -> tuple[np.ndarray, float, object] | None:
+        """The cars on the first track now, (N, 3) x m, y m, yaw rad in worker order, the latest sim
+        time (s) posted and their race obstacles (an Obstacles of (N, K) arrays, None in a time trial);
+        None when no worker has posted (or the board is gone)."""
         posted = self._ask_board("read_poses", version)
         pieces = [posted[i] for i in sorted(posted) if self._on_first_track(i)]
         if not pieces:
             return None
-        return np.concatenate([np.asarray(poses) for poses, _ in pieces]), max(t for _, t in pieces)
+        poses = np.concatenate([np.asarray(p[0]) for p in pieces])
+        obstacles = [p[2] for p in pieces]
+        if any(o is None for o in obstacles):
+            joined = None
+        else:
+            from laplab.sim.obstacles import Obstacles
+            joined = Obstacles(*(np.concatenate([np.asarray(o[f]) for o in obstacles])
+                                 for f in range(len(Obstacles._fields))))
+        return poses, max(p[1] for p in pieces), joined
 
     def _on_first_track(self, index: int) -> bool:
         return self.setups[index].track == self.setups[0].track
@@ -361,7 +370,7 @@ class RayCollector:
                 last_poses = time.monotonic()
                 cars = self._read_poses(version)
                 if cars is not None:
-                    on_poses(*cars)
+                    on_poses(cars[0], cars[1], obstacles=cars[2])
         collected = time.perf_counter()
         batch = merge_batches([results[i].batch for i in range(len(self.actors))])
         require_policy_version(batch, version)

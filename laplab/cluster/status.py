@@ -93,18 +93,22 @@ class ProgressBoard:
 
     def __init__(self):
         self.counts: dict[int, tuple[int, int, int]] = {}  # worker -> (policy version, episodes done, env steps)
-        self.poses: dict[int, tuple[int, object, float]] = {}  # worker -> (policy version, poses (N_w, 3), sim s)
+        # worker -> (policy version, poses (N_w, 3), sim s, its cars' race obstacles or None)
+        self.poses: dict[int, tuple[int, object, float, object]] = {}
 
     def report(self, index: int, version: int, done: int, steps: int) -> None:
         self.counts[index] = (version, done, steps)
 
-    def post_poses(self, index: int, version: int, poses, sim_time: float) -> None:
-        """Worker ``index``'s cars now: ``poses`` (N_w, 3) x m, y m, yaw rad; ``sim_time`` s into its collection."""
-        self.poses[index] = (version, poses, sim_time)
+    def post_poses(self, index: int, version: int, poses, sim_time: float, obstacles=None) -> None:
+        """Worker ``index``'s cars now: ``poses`` (N_w, 3) x m, y m, yaw rad; ``sim_time`` s into its
+        collection; ``obstacles``: its cars' race obstacles (a :class:`laplab.sim.obstacles.Obstacles`
+        of (N_w, K) arrays), None in a time trial."""
+        self.poses[index] = (version, poses, sim_time, obstacles)
 
-    def read_poses(self, version: int) -> dict[int, tuple[object, float]]:
-        """Worker index -> (poses (N_w, 3), sim time s) posted in the iteration acted with ``version``."""
-        return {i: (poses, t) for i, (v, poses, t) in self.poses.items() if v == version}
+    def read_poses(self, version: int) -> dict[int, tuple[object, float, object]]:
+        """Worker index -> (poses (N_w, 3), sim time s, obstacles or None) posted in the iteration acted
+        with ``version``."""
+        return {i: (poses, t, obstacles) for i, (v, poses, t, obstacles) in self.poses.items() if v == version}
 
     def read(self, version: int) -> dict[int, tuple[int, int]]:
         """Worker index -> (episodes done, env steps) in the iteration acted with ``version``."""

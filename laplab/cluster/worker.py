@@ -155,7 +155,9 @@ class RolloutWorker:
                 board.report.remote(self.setup.index, policy_version, *episodes_done_and_steps(self.sim.state))
             if post_poses and now - last[1] >= POSES_INTERVAL_S:
                 last[1] = now
-                board.post_poses.remote(self.setup.index, policy_version, np.asarray(poses, np.float32), sim_time)
+                field = self.sim.field  # a race's boxes and bots, for the live view to draw
+                board.post_poses.remote(self.setup.index, policy_version, np.asarray(poses, np.float32), sim_time,
+                                        field.obstacles if field is not None else None)
         return hook
 
     def collect(self, policy: dict, policy_version: int, episodes_before: int, board=None,

@@ -46,7 +46,8 @@ def create_app(workers: int | None = None, *, sandbox: bool | None = None, open_
     run without bubblewrap (:mod:`laplab.console.safety`); ``max_body_bytes`` / ``max_upload_bytes``:
     the largest request body (import: upload) accepted, and ``limits.max_time_s`` the longest training
     (:mod:`laplab.console.limits`)."""
-    from laplab.console import api, api_accounts, api_duels, api_exports, api_races, api_results, api_users, pages, pages_races
+    from laplab.console import (api, api_accounts, api_duels, api_exports, api_races, api_results, api_users, pages,
+                                pages_races)
     from laplab.console.service import TICK_S
 
     home = laplab_home()

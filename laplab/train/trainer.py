@@ -21,6 +21,7 @@ from laplab.agents.learner import Learner, build_learner as build_model_learner
 from laplab.env.observations import ObservationBuilder
 from laplab.env.step import EpisodeStepper
 from laplab.reward.errors import RewardFunctionError
+from laplab.sim.race_type import HEAD_TO_BOT, HEAD_TO_MODEL
 from laplab.sim.simulator import Simulator
 from laplab.sim.state import EpisodeParams
 from laplab.track.geometry import Track
@@ -162,18 +163,19 @@ class Trainer:
                 handler(payload)
 
     def _poses_emitter(self, evaluation: bool = False, sim=None):
-        """``emit(poses, sim_time)``: the running collection's (or evaluation's) cars as a
-        :class:`PosesFrame` to the listeners, with ``sim``'s race obstacles (boxes, bots) when it has
-        them; None when none listens (no frame is then made)."""
+        """``emit(poses, sim_time, obstacles=None)``: the running collection's (or evaluation's) cars as
+        a :class:`PosesFrame` to the listeners, with their race obstacles (boxes, bots: ``obstacles``,
+        else ``sim``'s when it has them); None when none listens (no frame is then made)."""
         if not any(getattr(listener, "on_poses", None) is not None for listener in self._listeners):
             return None
         iteration = self.iteration + (0 if evaluation else 1)  # evaluation runs after the iteration's count
         field = getattr(sim, "field", None)
+        moving = self.config.race_type.kind in (HEAD_TO_BOT, HEAD_TO_MODEL)  # its bots drive
 
-        def emit(poses, sim_time) -> None:
-            self._emit("on_poses", PosesFrame(iteration, poses, sim_time, evaluation,
-                                              obstacles=field.obstacles if field is not None else None,
-                                              obstacles_move=bool(field is not None and field.moving)))
+        def emit(poses, sim_time, obstacles=None) -> None:  # obstacles: rollout workers' (laplab.cluster)
+            if obstacles is None and field is not None:
+                obstacles = field.obstacles
+            self._emit("on_poses", PosesFrame(iteration, poses, sim_time, evaluation, obstacles, moving))
         return emit
 
     def _poses_hook(self, started: float):

@@ -40,11 +40,11 @@ def racers(console):
     tiny_model(console, f"u{ann.id}-bravo", ann.id)
     tiny_model(console, f"u{ann.id}-old-car", ann.id, vehicle="deepracer-v4")
     tiny_model(console, f"u{bob.id}-secret", bob.id)
-    return console.client(ann_token), console.client(bob_token), ann, bob
+    return console.client(ann_token), console.client(bob_token), ann, bob, ann_token
 
 
 def test_a_racer_races_two_own_models_and_sees_both_cars(console, racers):
-    ann, bob, _, _ = racers
+    ann, bob, *_ = racers
     choices = ann.get("/api/models/alpha/opponents").json()
     names = {o["name"]: o for o in choices["opponents"]}
     assert set(names) == {"bravo", "old-car"} and choices["track"] == "classic_2018"
@@ -71,7 +71,7 @@ def test_a_racer_races_two_own_models_and_sees_both_cars(console, racers):
 
 
 def test_another_users_model_is_refused_with_the_rule_whether_it_exists_or_not(console, racers):
-    ann, _, ann_user, bob_user = racers
+    ann, _, ann_user, bob_user, _ = racers
     assert not any("secret" in o["name"] for o in ann.get("/api/models/alpha/opponents").json()["opponents"])
     refusals = [ann.post("/api/models/alpha/duels", json={"opponent": name, "laps": 1, "max_time_s": 4})
                 for name in (f"u{bob_user.id}-secret", f"u{bob_user.id}-nothing", "secret")]
@@ -101,10 +101,40 @@ def test_an_opponent_on_another_physics_version_is_refused_next_to_the_field(rac
 def test_the_race_job_mounts_both_models_read_only_and_nothing_else(console, racers):
     from laplab.jobs.confinement import SANDBOX_HOME
     from laplab.jobs.runner import job_mounts
-    _, _, ann_user, bob_user = racers
+    _, _, ann_user, bob_user, _ = racers
     job = console.app.state.store.jobs(kind=("duel",))[0]  # the race of the first test
     mounts = job_mounts(job)
     inside_ro = set(mounts.readonly.values())
     assert {f"{SANDBOX_HOME}/models/u{ann_user.id}-alpha", f"{SANDBOX_HOME}/models/u{ann_user.id}-bravo"} <= inside_ro
     assert not any("/models/" in inside for inside in mounts.writable.values())
     assert not any(f"u{bob_user.id}-" in path for path in (*mounts.readonly, *mounts.writable))
+
+
+def test_the_model_page_shows_the_race_and_the_refusal_next_to_the_field(console, racers, tmp_path):
+    """One look in Chromium at the race of the first test (no new job)."""
+    import shutil
+    playwright_api = pytest.importorskip("playwright.sync_api")
+    if not shutil.which("chromium"):
+        pytest.skip("chromium is not installed")
+    from tests.console.test_browser import ARGS, CHROMIUM
+    with playwright_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True, timeout=60_000)
+        try:
+            page = browser.new_context(viewport={"width": 1360, "height": 900}).new_page()
+            page.set_default_timeout(30_000)
+            page.goto(f"{console.url}/login")
+            page.fill("#token", racers[4])
+            page.click("button[type=submit]")
+            page.wait_for_url(f"{console.url}/")
+            page.goto(f"{console.url}/models/alpha")
+            page.wait_for_selector("#duels [data-duel][data-status=done] img.duel-picture")
+            page.wait_for_function("document.querySelector('#duels img.duel-picture').naturalWidth > 100")
+            assert "bravo" in page.inner_text("#duels table")
+            page.select_option("#duel-opponent", "old-car")
+            assert "drives deepracer-v4" in page.inner_text("#duel-error")
+            assert page.is_disabled("#duel-start")
+            page.select_option("#duel-opponent", "bravo")
+            assert page.inner_text("#duel-error") == "" and not page.is_disabled("#duel-start")
+            page.screenshot(path=str(tmp_path / "race-another-model.png"), full_page=True)
+        finally:
+            browser.close()

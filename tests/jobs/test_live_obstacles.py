@@ -130,3 +130,24 @@ def test_the_console_hub_sends_the_boxes_to_every_stream(tmp_path, monkeypatch):
         assert stream.obstacles_seq == 1
     finally:
         store.close()
+
+
+def test_rollout_workers_hand_their_obstacles_to_the_live_view(monkeypatch):
+    """On Ray: each worker posts its cars' obstacles with its poses; the learner joins them in worker
+    order (the first track's workers only)."""
+    pytest.importorskip("ray")
+    from laplab.cluster.collector import RayCollector
+    from laplab.cluster.status import ProgressBoard
+    board = ProgressBoard()
+    first, second = two_cars_with(BOT_CAR, True), two_cars_with(BOT_CAR, False)
+    board.post_poses(1, 4, np.ones((2, 3)), 2.0, second)
+    board.post_poses(0, 4, np.zeros((2, 3)), 1.0, first)
+    board.post_poses(2, 3, np.zeros((2, 3)), 1.0, first)  # an older iteration's: left out
+    collector = RayCollector.__new__(RayCollector)
+    collector.setups = [SimpleNamespace(track="oval")] * 3
+    monkeypatch.setattr(collector, "_ask_board", lambda method, version: getattr(board, method)(version))
+    poses, sim_time, obstacles = collector._read_poses(4)
+    assert poses.shape == (4, 3) and sim_time == 2.0 and obstacles.kind.shape == (4, 3)
+    assert np.array_equal(obstacles.x, np.concatenate([first.x, second.x]))
+    board.post_poses(0, 5, np.zeros((2, 3)), 1.0)  # a time trial's worker posts none
+    assert collector._read_poses(5)[2] is None
