@@ -104,8 +104,9 @@ def job_mounts(job: Job) -> Mounts:
     model_view = readonly if job.kind in READ_ONLY_KINDS else writable  # an export or a race only reads its model
     model_view[str(target.resolve())] = f"{SANDBOX_HOME}/models/{job.model}"
     if job.kind == "duel":  # a head-to-model race: its opponents, read-only (the console checked who may race them)
-        for opponent in job.params.get("models", [])[1:]:
-            readonly[str((models_dir() / opponent).resolve())] = f"{SANDBOX_HOME}/models/{opponent}"
+        for opponent in job.params.get("models", [])[1:]:  # one deleted since: the race says it is missing
+            if (models_dir() / opponent).is_dir():
+                readonly[str((models_dir() / opponent).resolve())] = f"{SANDBOX_HOME}/models/{opponent}"
     cache = owner_cache(job.owner)
     cache.mkdir(parents=True, exist_ok=True)
     from laplab.jobs.warmup import seed
