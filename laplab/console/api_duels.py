@@ -112,7 +112,7 @@ def list_opponents(name: str, request: Request, user: User = Depends(current_use
         out.append({"name": handle, "owner": account.name if account else None, "ready": refused is None,
                     "refused": refused})
     return {"track": _home_track(key), "laps": 1, "max_time_s": RaceRequest.max_time_s, "opponents": out,
-            "rule": None if _may_race_anything(user) else "you race your own models: other users' models are private"}
+            "rule": None if _may_race_anything(user) else "You race your own models: other users' models are private"}
 
 
 @router.post("/models/{name}/duels", status_code=202)

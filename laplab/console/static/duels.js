@@ -33,7 +33,7 @@ const Duels = (() => {
       $("#duel-track").replaceChildren(...tracks.flatMap(t => [t.name, `${t.name}@reversed`]).map(v => el("option",
         {value: v, selected: v === opponents.track}, v.endsWith("@reversed") ? `${v.replace("@reversed", "")} (reversed)` : v)));
       $("#duel-laps").value = opponents.laps; $("#duel-max-time").value = opponents.max_time_s;
-      if (opponents.rule) $("#duel-rule").textContent += ` (${opponents.rule}.)`;
+      if (opponents.rule) $("#duel-rule").textContent += ` ${opponents.rule}.`;
       if (!opponents.opponents.length) error.textContent = "no other model to race: train or clone another one first";
       else showRefusal();
     } catch (e) { error.textContent = e.message; }
@@ -53,7 +53,7 @@ const Duels = (() => {
           ` · ${race.status}`, race.track ? ` · ${race.track}` : "", race.laps ? ` · ${race.laps} lap${race.laps > 1 ? "s" : ""}` : ""),
         race.error ? el("p", {class: "field-error"}, race.error) : "",
         race.racers.length ? el("table", {class: "grid compact"},
-          el("thead", {}, el("tr", {}, ...["Position", "Model", "Laps", "Finish time", "Lap times", "Crashes", "Off-track", "Penalty"].map(h => el("th", {}, h)))),
+          el("thead", {}, el("tr", {}, ...["Position", "Model", "Laps", "Finish time", "Lap times", "Crashes", "Off-track", "Penalty"].map((h, i) => el("th", {class: i > 1 ? "num" : ""}, h)))),
           el("tbody", {}, ...race.racers.map(r => el("tr", {},
             el("td", {}, r.position), el("td", {style: r.car !== null ? `color:${race.colours[r.car]}` : ""}, r.name), el("td", {class: "num"}, r.laps),
             el("td", {class: "num"}, r.finish_time === null ? `did not finish (${Number(r.progress).toFixed(1)} %)` : secs(r.finish_time)),
