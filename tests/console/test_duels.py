@@ -86,6 +86,14 @@ def test_another_users_model_is_refused_with_the_rule_whether_it_exists_or_not(c
     # an admin may pick any model (by its key)
     admin_choices = console.admin.get(f"/api/models/u{ann_user.id}-alpha/opponents").json()
     assert f"u{bob_user.id}-secret" in {o["name"] for o in admin_choices["opponents"]}
+    # so may a race facilitator, from one of their own models
+    facilitator, token = console.app.state.store.add_user("duel-host", role="facilitator")
+    tiny_model(console, f"u{facilitator.id}-host-car", facilitator.id)
+    host = console.client(token)
+    host_choices = {o["name"] for o in host.get("/api/models/host-car/opponents").json()["opponents"]}
+    assert {f"u{bob_user.id}-secret", f"u{ann_user.id}-alpha"} <= host_choices
+    missing = host.post("/api/models/host-car/duels", json={"opponent": "u999-nothing"})
+    assert missing.status_code == 404 and missing.json()["detail"]["field"] == "opponent"
 
 
 def test_an_opponent_on_another_physics_version_is_refused_next_to_the_field(racers):
