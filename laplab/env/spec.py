@@ -97,7 +97,8 @@ def sensor_space(sensor: str, stack_size: int = 1, lidar_config: dict | None = N
         size = StateSensorParams().size + (summary_size() if objects_summary else 0)
         return gym.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
     if sensor in LIDAR_SENSORS:
-        from laplab.sensors.lidar import DEFAULT_LIDAR, lidar_observation_shape
+        from laplab.sensors.lidar import DEFAULT_LIDAR
+        from laplab.sensors.lidar_observation import lidar_observation_shape
         shape = lidar_observation_shape(sensor, lidar_config, DEFAULT_LIDAR.num_beams)
         high = np.inf if sensor == "LIDAR" else 1.0
         return gym.spaces.Box(0.0, high, shape=shape, dtype=np.float32)
