@@ -126,10 +126,7 @@ class LidarWalls:
         hi = np.maximum(seg[:, 0:2], seg[:, 2:4]).max(axis=0) + 1e-3
         cell = max(float(cell_size), float((hi - lo).max()) / max_cells)
         nx, ny = (int(v) for v in np.ceil((hi - lo) / cell).astype(np.int64))
-        counts = _count_cell_segments(seg, lo[0], lo[1], cell, nx, ny)
-        cell_start = np.zeros(nx * ny + 1, dtype=np.int64)
-        np.cumsum(counts, out=cell_start[1:])
-        cell_segments = _fill_cell_segments(seg, lo[0], lo[1], cell, nx, ny, cell_start)
+        cell_start, cell_segments = _grid_cells(seg, lo[0], lo[1], cell, nx, ny)
         return cls(seg, float(lo[0]), float(lo[1]), cell, nx, ny, cell_start, cell_segments)
 
     @classmethod
@@ -164,32 +161,28 @@ def _cell_range(lo, hi, origin, size, n):
 
 
 @numba.njit(cache=True)
-def _count_cell_segments(seg, ox, oy, size, nx, ny):
+def _grid_cells(seg, ox, oy, size, nx, ny):
+    """(cell_start (nx*ny + 1,) int64, cell_segments int32) of the segments (S, 4) in the grid: the first
+    pass counts the segments each cell touches, the second lists them (ascending) at their cell's offset."""
     counts = np.zeros(nx * ny, dtype=np.int64)
-    for j in range(seg.shape[0]):
-        ix0, ix1 = _cell_range(min(seg[j, 0], seg[j, 2]), max(seg[j, 0], seg[j, 2]), ox, size, nx)
-        iy0, iy1 = _cell_range(min(seg[j, 1], seg[j, 3]), max(seg[j, 1], seg[j, 3]), oy, size, ny)
-        for iy in range(iy0, iy1 + 1):
-            for ix in range(ix0, ix1 + 1):
-                if _touches_cell(seg, j, ox + ix * size, oy + iy * size, size, 1e-9 + 1e-6 * size):
-                    counts[iy * nx + ix] += 1
-    return counts
-
-
-@numba.njit(cache=True)
-def _fill_cell_segments(seg, ox, oy, size, nx, ny, cell_start):
-    out = np.empty(cell_start[-1], dtype=np.int32)
-    fill = cell_start[:-1].copy()
-    for j in range(seg.shape[0]):
-        ix0, ix1 = _cell_range(min(seg[j, 0], seg[j, 2]), max(seg[j, 0], seg[j, 2]), ox, size, nx)
-        iy0, iy1 = _cell_range(min(seg[j, 1], seg[j, 3]), max(seg[j, 1], seg[j, 3]), oy, size, ny)
-        for iy in range(iy0, iy1 + 1):
-            for ix in range(ix0, ix1 + 1):
-                if _touches_cell(seg, j, ox + ix * size, oy + iy * size, size, 1e-9 + 1e-6 * size):
-                    c = iy * nx + ix
-                    out[fill[c]] = j
-                    fill[c] += 1
-    return out
+    cell_start = np.zeros(nx * ny + 1, dtype=np.int64)
+    cell_segments = np.empty(0, dtype=np.int32)
+    for listing in (False, True):
+        if listing:
+            cell_start[1:] = np.cumsum(counts)
+            cell_segments = np.empty(cell_start[-1], dtype=np.int32)
+            counts[:] = 0
+        for j in range(seg.shape[0]):
+            ix0, ix1 = _cell_range(min(seg[j, 0], seg[j, 2]), max(seg[j, 0], seg[j, 2]), ox, size, nx)
+            iy0, iy1 = _cell_range(min(seg[j, 1], seg[j, 3]), max(seg[j, 1], seg[j, 3]), oy, size, ny)
+            for iy in range(iy0, iy1 + 1):
+                for ix in range(ix0, ix1 + 1):
+                    if _touches_cell(seg, j, ox + ix * size, oy + iy * size, size, 1e-9 + 1e-6 * size):
+                        c = iy * nx + ix
+                        if listing:
+                            cell_segments[cell_start[c] + counts[c]] = j
+                        counts[c] += 1
+    return cell_start, cell_segments
 
 
 @numba.njit(cache=True)
