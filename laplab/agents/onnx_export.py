@@ -155,17 +155,19 @@ def policy_to_onnx(network: nn.Module, observation_space: gym.Space, sensors: Se
     return model.SerializeToString()
 
 
-def torch_policy_output(network: nn.Module, observations: Any) -> np.ndarray:
+def torch_policy_output(network: nn.Module, observations: Any, raw: bool = False) -> np.ndarray:
     """The reference the graph must reproduce, through the network's own forward: discrete action
     probabilities (B, A) or the greedy continuous action (B, 2) for laplab observations
-    (channels-first cameras, a tensor or a dict of tensors)."""
+    (channels-first cameras, a tensor or a dict of tensors). A continuous PPO action is the Gaussian
+    mean clipped to [-1, 1] as laplab drives (``raw``: unclipped); SAC's is tanh(mean)."""
     with torch.no_grad():
         if isinstance(network, SquashedGaussianActor):
             return network(observations, deterministic=True)[0].numpy()
         distribution, _ = network(observations)
         if network.action_spec.discrete:
             return distribution.probs.numpy()
-        return distribution.mean.clamp(-1.0, 1.0).numpy()
+        mean = distribution.mean
+        return (mean if raw else mean.clamp(-1.0, 1.0)).numpy()
 
 
 def random_observations(observation_space: gym.Space, batch: int, seed: int = 0) -> Any:

@@ -173,20 +173,10 @@ def reference_output(network: Any, observations: Any, raw: bool = True) -> np.nd
     """What the graph must reproduce, through the network's own torch forward, for laplab
     observations (numpy, channels-first cameras): PPO discrete probabilities (B, A); PPO continuous
     the Gaussian mean (B, 2) (``raw``; else clipped to [-1, 1] as laplab drives); SAC tanh(mean)."""
-    import torch
-
     from laplab.agents.networks import observation_to_tensor
-    from laplab.agents.sac_networks import SquashedGaussianActor
+    from laplab.agents.onnx_export import torch_policy_output
 
-    tensors = observation_to_tensor(observations, "cpu")
-    with torch.no_grad():
-        if isinstance(network, SquashedGaussianActor):
-            return network(tensors, deterministic=True)[0].numpy()
-        distribution, _ = network(tensors)
-        if network.action_spec.discrete:
-            return distribution.probs.numpy()
-        mean = distribution.mean
-        return (mean if raw else mean.clamp(-1.0, 1.0)).numpy()
+    return torch_policy_output(network, observation_to_tensor(observations, "cpu"), raw=raw)
 
 
 def _set_dense(sequential: Any, layers: Sequence[Dense]) -> None:
