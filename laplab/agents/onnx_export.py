@@ -29,7 +29,7 @@ from torch import nn
 
 from laplab.agents.networks import CAMERA_SENSORS, ActorCritic
 from laplab.agents.sac_networks import SquashedGaussianActor
-from laplab.env.spec import ModelSpec
+from laplab.env.spec import ModelSpec, sensor_spaces
 
 ONNX_OPSET = 17
 PROBABILITIES = "probabilities"
@@ -50,21 +50,8 @@ class GraphInput:
 def graph_inputs(observation_space: gym.Space, sensors: Sequence[str]) -> tuple[GraphInput, ...]:
     """The graph inputs of a network trained on ``observation_space`` (a ``Box`` for one sensor,
     a ``Dict`` keyed by sensor names), in the order of ``sensors`` (model_metadata.json's list)."""
-    if isinstance(observation_space, gym.spaces.Dict):
-        spaces = dict(observation_space.spaces)
-        missing = [name for name in spaces if name not in sensors]
-        if missing:
-            raise ValueError(f"observation keys {missing} are not among the model's sensors {list(sensors)}")
-        names = [name for name in sensors if name in spaces]
-    elif isinstance(observation_space, gym.spaces.Box):
-        if len(sensors) != 1:
-            raise ValueError(f"a Box observation space belongs to exactly one sensor, got sensors {list(sensors)}")
-        names, spaces = list(sensors), {sensors[0]: observation_space}
-    else:
-        raise ValueError(f"cannot export a network observing a {type(observation_space).__name__} space")
     inputs = []
-    for name in names:
-        space = spaces[name]
+    for name, space in sensor_spaces(observation_space, sensors).items():
         shape = tuple(int(s) for s in space.shape)
         if name in CAMERA_SENSORS:
             if len(shape) != 3:

@@ -153,16 +153,13 @@ def _trunk_layers(trunk: Any, observation_space: Any, sensors: Sequence[str]) ->
                                                                                       tuple[Dense, ...]]:
     import gymnasium as gym
 
+    from laplab.env.spec import sensor_spaces
+
+    spaces = sensor_spaces(observation_space, sensors)
     if isinstance(observation_space, gym.spaces.Dict):
-        spaces = dict(observation_space.spaces)
-        missing = [name for name in spaces if name not in sensors]
-        if missing:
-            raise ValueError(f"observation keys {missing} are not among the model's sensors {list(sensors)}")
         keys = {name: name for name in spaces}
-    else:
-        if len(sensors) != 1:
-            raise ValueError(f"a Box observation space belongs to exactly one sensor, got sensors {list(sensors)}")
-        spaces, keys = {sensors[0]: observation_space}, {sensors[0]: trunk.sensor_names[0]}
+    else:  # a Box: the trunk's one embedder
+        keys = {sensors[0]: trunk.sensor_names[0]}
     # laplab concatenates the embedders sorted by their key (sensor name; 'observation' for a Box)
     order = sorted(spaces, key=lambda name: keys[name])
     branches = tuple(_branch(name, trunk.sensors[keys[name]], spaces[name]) for name in order)
