@@ -29,7 +29,7 @@ from torch import nn
 
 from laplab.agents.networks import CAMERA_SENSORS, ActorCritic
 from laplab.agents.sac_networks import SquashedGaussianActor
-from laplab.env.spec import ModelSpec
+from laplab.env.spec import ModelSpec, sensor_spaces
 
 ONNX_OPSET = 17
 PROBABILITIES = "probabilities"
@@ -50,21 +50,8 @@ class GraphInput:
 def graph_inputs(observation_space: gym.Space, sensors: Sequence[str]) -> tuple[GraphInput, ...]:
     """The graph inputs of a network trained on ``observation_space`` (a ``Box`` for one sensor,
     a ``Dict`` keyed by sensor names), in the order of ``sensors`` (model_metadata.json's list)."""
-    if isinstance(observation_space, gym.spaces.Dict):
-        spaces = dict(observation_space.spaces)
-        missing = [name for name in spaces if name not in sensors]
-        if missing:
-            raise ValueError(f"observation keys {missing} are not among the model's sensors {list(sensors)}")
-        names = [name for name in sensors if name in spaces]
-    elif isinstance(observation_space, gym.spaces.Box):
-        if len(sensors) != 1:
-            raise ValueError(f"a Box observation space belongs to exactly one sensor, got sensors {list(sensors)}")
-        names, spaces = list(sensors), {sensors[0]: observation_space}
-    else:
-        raise ValueError(f"cannot export a network observing a {type(observation_space).__name__} space")
     inputs = []
-    for name in names:
-        space = spaces[name]
+    for name, space in sensor_spaces(observation_space, sensors).items():
         shape = tuple(int(s) for s in space.shape)
         if name in CAMERA_SENSORS:
             if len(shape) != 3:
@@ -155,17 +142,19 @@ def policy_to_onnx(network: nn.Module, observation_space: gym.Space, sensors: Se
     return model.SerializeToString()
 
 
-def torch_policy_output(network: nn.Module, observations: Any) -> np.ndarray:
+def torch_policy_output(network: nn.Module, observations: Any, raw: bool = False) -> np.ndarray:
     """The reference the graph must reproduce, through the network's own forward: discrete action
     probabilities (B, A) or the greedy continuous action (B, 2) for laplab observations
-    (channels-first cameras, a tensor or a dict of tensors)."""
+    (channels-first cameras, a tensor or a dict of tensors). A continuous PPO action is the Gaussian
+    mean clipped to [-1, 1] as laplab drives (``raw``: unclipped); SAC's is tanh(mean)."""
     with torch.no_grad():
         if isinstance(network, SquashedGaussianActor):
             return network(observations, deterministic=True)[0].numpy()
         distribution, _ = network(observations)
         if network.action_spec.discrete:
             return distribution.probs.numpy()
-        return distribution.mean.clamp(-1.0, 1.0).numpy()
+        mean = distribution.mean
+        return (mean if raw else mean.clamp(-1.0, 1.0)).numpy()
 
 
 def random_observations(observation_space: gym.Space, batch: int, seed: int = 0) -> Any:

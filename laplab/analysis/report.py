@@ -17,9 +17,9 @@ from typing import Any
 
 import numpy as np
 
-from laplab.analysis.loaders import (Evaluation, ReportDataError, TrainingHistory, last_episodes,
-                                     load_evaluations, load_training_history, load_training_traces,
-                                     select_rows, traced_iterations)
+from laplab.analysis.evaluations import Evaluation, load_evaluations
+from laplab.analysis.loaders import (ReportDataError, TrainingHistory, last_episodes, load_training_history,
+                                     load_training_traces, select_rows, traced_iterations)
 from laplab.analysis.plots import (PlotStyle, iteration_range_text, plot_action_usage, plot_evaluation,
                                    plot_losses, plot_reward_map, reward_map_cell, plot_training, plot_trajectories)
 from laplab.store.atomic import atomic_write_text, read_json

@@ -10,10 +10,10 @@ from laplab.env.action_space import (
     MAX_DISCRETE_ACTIONS, ActionSpace, ActionSpaceError, default_action_space, parse_action_space,
 )
 from laplab.errors import UserError
+from laplab.sensors.lidar_observation import LIDAR_SENSORS
 from laplab.vehicle.physics import DEFAULT_VERSION, PhysicsError, car_for_version
 
 CAMERA_SENSORS = ("FRONT_FACING_CAMERA", "STEREO_CAMERAS", "LEFT_CAMERA")
-LIDAR_SENSORS = ("LIDAR", "SECTOR_LIDAR", "DISCRETIZED_SECTOR_LIDAR")
 STATE_SENSOR = "STATE"  # laplab's own vector sensor (see laplab.sensors.state_vector)
 ALL_SENSORS = CAMERA_SENSORS + LIDAR_SENSORS + (STATE_SENSOR,)
 #: The sensor sets a model may have, as the console offers them: STATE, or a camera, or a camera with a lidar

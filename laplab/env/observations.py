@@ -86,7 +86,8 @@ class ObservationBuilder:
                 self._parts[sensor] = (box, self._camera_reader(sensor, box))
 
     def _lidar_reader(self, sensor: str, lidar_config: dict | None) -> Reader:
-        from laplab.sensors.lidar import DEFAULT_LIDAR, LidarWalls, lidar_observation, scan
+        from laplab.sensors.lidar import DEFAULT_LIDAR, LidarWalls, scan
+        from laplab.sensors.lidar_observation import lidar_observation
         walls = LidarWalls.from_track(self.sim.track)
         poses = self.sim.poses
 

@@ -12,6 +12,7 @@ the observation space follows from the spec alone.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -97,7 +98,8 @@ def sensor_space(sensor: str, stack_size: int = 1, lidar_config: dict | None = N
         size = StateSensorParams().size + (summary_size() if objects_summary else 0)
         return gym.spaces.Box(-np.inf, np.inf, shape=(size,), dtype=np.float32)
     if sensor in LIDAR_SENSORS:
-        from laplab.sensors.lidar import DEFAULT_LIDAR, lidar_observation_shape
+        from laplab.sensors.lidar import DEFAULT_LIDAR
+        from laplab.sensors.lidar_observation import lidar_observation_shape
         shape = lidar_observation_shape(sensor, lidar_config, DEFAULT_LIDAR.num_beams)
         high = np.inf if sensor == "LIDAR" else 1.0
         return gym.spaces.Box(0.0, high, shape=shape, dtype=np.float32)
@@ -118,3 +120,20 @@ def observation_space(metadata: ModelMetadata | ModelSpec, stack_size: int = 1,
         metadata, stack_size, objects_summary = metadata.metadata, metadata.stack_size, metadata.objects_summary
     boxes = {name: sensor_space(name, stack_size, metadata.lidar_config, objects_summary) for name in metadata.sensors}
     return next(iter(boxes.values())) if len(boxes) == 1 else gym.spaces.Dict(boxes)
+
+
+def sensor_spaces(observation_space: gym.Space, sensors: Sequence[str]) -> dict[str, gym.Space]:
+    """Each sensor's space in an observation space as :func:`observation_space` makes it (a ``Box`` for
+    one sensor, a ``Dict`` keyed by sensor names), in the order of ``sensors``; ValueError when the
+    space does not belong to these sensors."""
+    if isinstance(observation_space, gym.spaces.Dict):
+        spaces = dict(observation_space.spaces)
+        missing = [name for name in spaces if name not in sensors]
+        if missing:
+            raise ValueError(f"observation keys {missing} are not among the model's sensors {list(sensors)}")
+        return {name: spaces[name] for name in sensors if name in spaces}
+    if isinstance(observation_space, gym.spaces.Box):
+        if len(sensors) != 1:
+            raise ValueError(f"a Box observation space belongs to exactly one sensor, got sensors {list(sensors)}")
+        return {sensors[0]: observation_space}
+    raise ValueError(f"cannot export a network observing a {type(observation_space).__name__} space")

@@ -337,6 +337,7 @@ def _write_model(name: str, layout: DeepRacerLayout, config, learner, source: st
     from laplab.store.checkpoints import CheckpointStore
     from laplab.store.layout import ModelFolder, model_folder, models_root
     from laplab.train.archive import IMPORT_RECORD
+    from laplab.train.model_files import write_model_files
     from laplab.train.trainer import checkpoint_writer
 
     trainable = layout.checkpoint is not None
@@ -356,10 +357,7 @@ def _write_model(name: str, layout: DeepRacerLayout, config, learner, source: st
     target = model_folder(name)
     try:
         staging.create()
-        staging.write_model_metadata(config.model_metadata.to_dict())
-        staging.write_hyperparameters(config.hyper().to_dict())
-        staging.write_reward_function(reward)
-        staging.write_laplab_config(config.to_dict())
+        write_model_files(staging, config, reward)
         path = CheckpointStore(staging).save(checkpoint_writer(learner, iteration, steps, 0, None),
                                              iteration=iteration, steps=steps, metric=layout.checkpoint_metric)
         atomic_write_json(staging.root / IMPORT_RECORD, {

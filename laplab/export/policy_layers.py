@@ -153,16 +153,13 @@ def _trunk_layers(trunk: Any, observation_space: Any, sensors: Sequence[str]) ->
                                                                                       tuple[Dense, ...]]:
     import gymnasium as gym
 
+    from laplab.env.spec import sensor_spaces
+
+    spaces = sensor_spaces(observation_space, sensors)
     if isinstance(observation_space, gym.spaces.Dict):
-        spaces = dict(observation_space.spaces)
-        missing = [name for name in spaces if name not in sensors]
-        if missing:
-            raise ValueError(f"observation keys {missing} are not among the model's sensors {list(sensors)}")
         keys = {name: name for name in spaces}
-    else:
-        if len(sensors) != 1:
-            raise ValueError(f"a Box observation space belongs to exactly one sensor, got sensors {list(sensors)}")
-        spaces, keys = {sensors[0]: observation_space}, {sensors[0]: trunk.sensor_names[0]}
+    else:  # a Box: the trunk's one embedder
+        keys = {sensors[0]: trunk.sensor_names[0]}
     # laplab concatenates the embedders sorted by their key (sensor name; 'observation' for a Box)
     order = sorted(spaces, key=lambda name: keys[name])
     branches = tuple(_branch(name, trunk.sensors[keys[name]], spaces[name]) for name in order)
@@ -173,20 +170,10 @@ def reference_output(network: Any, observations: Any, raw: bool = True) -> np.nd
     """What the graph must reproduce, through the network's own torch forward, for laplab
     observations (numpy, channels-first cameras): PPO discrete probabilities (B, A); PPO continuous
     the Gaussian mean (B, 2) (``raw``; else clipped to [-1, 1] as laplab drives); SAC tanh(mean)."""
-    import torch
-
     from laplab.agents.networks import observation_to_tensor
-    from laplab.agents.sac_networks import SquashedGaussianActor
+    from laplab.agents.onnx_export import torch_policy_output
 
-    tensors = observation_to_tensor(observations, "cpu")
-    with torch.no_grad():
-        if isinstance(network, SquashedGaussianActor):
-            return network(tensors, deterministic=True)[0].numpy()
-        distribution, _ = network(tensors)
-        if network.action_spec.discrete:
-            return distribution.probs.numpy()
-        mean = distribution.mean
-        return (mean if raw else mean.clamp(-1.0, 1.0)).numpy()
+    return torch_policy_output(network, observation_to_tensor(observations, "cpu"), raw=raw)
 
 
 def _set_dense(sequential: Any, layers: Sequence[Dense]) -> None:

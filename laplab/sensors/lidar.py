@@ -1,4 +1,4 @@
-"""DeepRacer's 2-D lidar: batched ray casting against the track borders, and its observations.
+"""DeepRacer's 2-D lidar: batched ray casting against the track borders (ranges in metres).
 
 The sim car's lidar (reference doc section 4; simapp ``markov/sensors/constants.py``) has 64 beams
 spread evenly over -150..+150 deg (both ends included, beam 0 on the car's right), ranges 0.15-12 m
@@ -16,6 +16,8 @@ reports +inf there, which every DeepRacer observation filter maps to the same va
 Speed: :class:`LidarWalls` keeps the wall segments in a uniform grid built once per track; each
 beam walks the grid cells it crosses (Amanatides-Woo DDA) in a numba kernel, parallel over beams.
 :func:`scan_reference` is the brute-force numpy version for parity tests.
+What the network sees of the ranges (simapp's observation filters) is in
+:mod:`laplab.sensors.lidar_observation`.
 """
 
 from __future__ import annotations
@@ -30,10 +32,6 @@ import numpy as np
 from laplab.sensors.obstacle_kernel import obstacle_ranges
 from laplab.sensors.obstacle_look import obstacle_boxes
 
-LIDAR_SENSORS = ("LIDAR", "SECTOR_LIDAR", "DISCRETIZED_SECTOR_LIDAR")
-LIDAR_CLIP = (0.15, 1.0)  # m: simapp's ObservationClippingFilter for LIDAR
-SECTOR_LIDAR_SECTORS = 8
-SECTOR_LIDAR_CLIPPING_DIST = 0.5  # m
 _PARALLEL_MIN_RAYS = 2048  # below this a serial kernel beats the thread start-up cost
 
 
@@ -76,47 +74,6 @@ class LidarParams:
 
 
 DEFAULT_LIDAR = LidarParams()
-
-
-@dataclass(frozen=True)
-class LidarConfig:
-    """``model_metadata.json``'s ``lidar_config`` for DISCRETIZED_SECTOR_LIDAR."""
-
-    num_sectors: int = 8
-    num_values_per_sector: int = 8
-    clipping_dist: float = 2.0  # m
-
-
-def parse_lidar_config(config: dict | LidarConfig | None, num_beams: int = 64) -> LidarConfig:
-    """Read a ``lidar_config`` dict (missing keys take DeepRacer's defaults 8, 8, 2.0 m).
-
-    Like simapp's ObservationSectorDiscretizeFilter, counts below 1 become 1 and ``clipping_dist``
-    is clamped to [0.15, 12] m. Non-numbers and a sector count that does not divide the beam count
-    raise ValueError.
-    """
-    if isinstance(config, LidarConfig):
-        config = {"num_sectors": config.num_sectors, "num_values_per_sector": config.num_values_per_sector,
-                  "clipping_dist": config.clipping_dist}
-    config = dict(config or {})
-    unknown = set(config) - {"num_sectors", "num_values_per_sector", "clipping_dist"}
-    if unknown:
-        raise ValueError(f"lidar_config: unknown key(s) {sorted(unknown)}; known keys are num_sectors, "
-                         "num_values_per_sector and clipping_dist.")
-    defaults = LidarConfig()
-    values = {}
-    for key, kind in (("num_sectors", int), ("num_values_per_sector", int), ("clipping_dist", float)):
-        value = config.get(key, getattr(defaults, key))
-        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-        if not ok or (kind is int and int(value) != value):
-            raise ValueError(f"lidar_config: {key} must be {'an integer' if kind is int else 'a number'}, "
-                             f"got {value!r}.")
-        values[key] = kind(value)
-    sectors = max(values["num_sectors"], 1)
-    if num_beams % sectors:
-        raise ValueError(f"lidar_config: num_sectors={sectors} does not divide the {num_beams} lidar beams; "
-                         "DeepRacer needs equal sectors (use 1, 2, 4, 8, 16, 32 or 64).")
-    clip = min(max(values["clipping_dist"], LIDAR_CLIP[0]), DEFAULT_LIDAR.max_range)
-    return LidarConfig(sectors, max(values["num_values_per_sector"], 1), clip)
 
 
 def track_borders(track) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -169,10 +126,7 @@ class LidarWalls:
         hi = np.maximum(seg[:, 0:2], seg[:, 2:4]).max(axis=0) + 1e-3
         cell = max(float(cell_size), float((hi - lo).max()) / max_cells)
         nx, ny = (int(v) for v in np.ceil((hi - lo) / cell).astype(np.int64))
-        counts = _count_cell_segments(seg, lo[0], lo[1], cell, nx, ny)
-        cell_start = np.zeros(nx * ny + 1, dtype=np.int64)
-        np.cumsum(counts, out=cell_start[1:])
-        cell_segments = _fill_cell_segments(seg, lo[0], lo[1], cell, nx, ny, cell_start)
+        cell_start, cell_segments = _grid_cells(seg, lo[0], lo[1], cell, nx, ny)
         return cls(seg, float(lo[0]), float(lo[1]), cell, nx, ny, cell_start, cell_segments)
 
     @classmethod
@@ -207,32 +161,28 @@ def _cell_range(lo, hi, origin, size, n):
 
 
 @numba.njit(cache=True)
-def _count_cell_segments(seg, ox, oy, size, nx, ny):
+def _grid_cells(seg, ox, oy, size, nx, ny):
+    """(cell_start (nx*ny + 1,) int64, cell_segments int32) of the segments (S, 4) in the grid: the first
+    pass counts the segments each cell touches, the second lists them (ascending) at their cell's offset."""
     counts = np.zeros(nx * ny, dtype=np.int64)
-    for j in range(seg.shape[0]):
-        ix0, ix1 = _cell_range(min(seg[j, 0], seg[j, 2]), max(seg[j, 0], seg[j, 2]), ox, size, nx)
-        iy0, iy1 = _cell_range(min(seg[j, 1], seg[j, 3]), max(seg[j, 1], seg[j, 3]), oy, size, ny)
-        for iy in range(iy0, iy1 + 1):
-            for ix in range(ix0, ix1 + 1):
-                if _touches_cell(seg, j, ox + ix * size, oy + iy * size, size, 1e-9 + 1e-6 * size):
-                    counts[iy * nx + ix] += 1
-    return counts
-
-
-@numba.njit(cache=True)
-def _fill_cell_segments(seg, ox, oy, size, nx, ny, cell_start):
-    out = np.empty(cell_start[-1], dtype=np.int32)
-    fill = cell_start[:-1].copy()
-    for j in range(seg.shape[0]):
-        ix0, ix1 = _cell_range(min(seg[j, 0], seg[j, 2]), max(seg[j, 0], seg[j, 2]), ox, size, nx)
-        iy0, iy1 = _cell_range(min(seg[j, 1], seg[j, 3]), max(seg[j, 1], seg[j, 3]), oy, size, ny)
-        for iy in range(iy0, iy1 + 1):
-            for ix in range(ix0, ix1 + 1):
-                if _touches_cell(seg, j, ox + ix * size, oy + iy * size, size, 1e-9 + 1e-6 * size):
-                    c = iy * nx + ix
-                    out[fill[c]] = j
-                    fill[c] += 1
-    return out
+    cell_start = np.zeros(nx * ny + 1, dtype=np.int64)
+    cell_segments = np.empty(0, dtype=np.int32)
+    for listing in (False, True):
+        if listing:
+            cell_start[1:] = np.cumsum(counts)
+            cell_segments = np.empty(cell_start[-1], dtype=np.int32)
+            counts[:] = 0
+        for j in range(seg.shape[0]):
+            ix0, ix1 = _cell_range(min(seg[j, 0], seg[j, 2]), max(seg[j, 0], seg[j, 2]), ox, size, nx)
+            iy0, iy1 = _cell_range(min(seg[j, 1], seg[j, 3]), max(seg[j, 1], seg[j, 3]), oy, size, ny)
+            for iy in range(iy0, iy1 + 1):
+                for ix in range(ix0, ix1 + 1):
+                    if _touches_cell(seg, j, ox + ix * size, oy + iy * size, size, 1e-9 + 1e-6 * size):
+                        c = iy * nx + ix
+                        if listing:
+                            cell_segments[cell_start[c] + counts[c]] = j
+                        counts[c] += 1
+    return cell_start, cell_segments
 
 
 @numba.njit(cache=True)
@@ -377,49 +327,3 @@ def scan_reference(segments: np.ndarray | LidarWalls, poses: np.ndarray, params:
     valid = (denom != 0) & (u >= 0) & (u <= 1) & (t >= params.min_range) & (t <= params.max_range)
     ranges = np.where(valid, t, params.max_range).min(axis=-1).astype(np.float32)
     return _add_noise(ranges, params, rng)
-
-
-def lidar_observation_shape(sensor_name: str, lidar_config: dict | LidarConfig | None = None,
-                            num_beams: int = 64) -> tuple[int]:
-    """Observation shape of a lidar sensor: (64,), (8,) or (num_sectors * num_values_per_sector,)."""
-    if sensor_name == "LIDAR":
-        return (num_beams,)
-    if sensor_name == "SECTOR_LIDAR":
-        return (SECTOR_LIDAR_SECTORS,)
-    if sensor_name == "DISCRETIZED_SECTOR_LIDAR":
-        config = parse_lidar_config(lidar_config, num_beams)
-        return (config.num_sectors * config.num_values_per_sector,)
-    raise ValueError(f"unknown lidar sensor {sensor_name!r}; model_metadata 'sensor' lidar names are "
-                     f"{', '.join(LIDAR_SENSORS)}")
-
-
-def lidar_observation(sensor_name: str, ranges: np.ndarray, lidar_config: dict | LidarConfig | None = None
-                      ) -> np.ndarray:
-    """What the network sees, from ranges (..., num_beams) m; float32, as simapp's input filters make it.
-
-    - LIDAR: ranges clipped to [0.15, 1.0] m, shape (..., num_beams).
-    - SECTOR_LIDAR: 8 sectors of consecutive beams (sector 0 starts at the car's right rear); 1.0 where
-      the sector's nearest range is < 0.5 m, else 0.0; shape (..., 8).
-    - DISCRETIZED_SECTOR_LIDAR: per sector, the nearest range clipped to ``clipping_dist`` falls into
-      one of ``num_values_per_sector`` equal bins, one-hot encoded (bin 0 = nearest); a sector with
-      nothing nearer than ``clipping_dist`` is all zeros; shape (..., num_sectors * num_values_per_sector).
-    """
-    ranges = np.asarray(ranges)
-    if ranges.ndim == 0 or ranges.shape[-1] == 0:
-        raise ValueError(f"lidar_observation: ranges must end in a beam axis (DeepRacer: 64), got shape {ranges.shape}")
-    shape = lidar_observation_shape(sensor_name, lidar_config, ranges.shape[-1])
-    lead = ranges.shape[:-1]
-    if sensor_name == "LIDAR":
-        return np.clip(ranges, *LIDAR_CLIP).astype(np.float32)
-    if sensor_name == "SECTOR_LIDAR":
-        if ranges.shape[-1] % SECTOR_LIDAR_SECTORS:
-            raise ValueError(f"lidar_observation: SECTOR_LIDAR splits the beams into 8 sectors, but there are "
-                             f"{ranges.shape[-1]} beams (DeepRacer: 64)")
-        nearest = ranges.reshape(lead + (SECTOR_LIDAR_SECTORS, -1)).min(axis=-1)
-        return (nearest < SECTOR_LIDAR_CLIPPING_DIST).astype(np.float32)
-    config = parse_lidar_config(lidar_config, ranges.shape[-1])
-    nearest = ranges.astype(np.float64).reshape(lead + (config.num_sectors, -1)).min(axis=-1)
-    # Same float64 arithmetic as simapp, so bin edges fall exactly where DeepRacer puts them.
-    bins = np.floor(np.minimum(nearest, config.clipping_dist) / (config.clipping_dist / config.num_values_per_sector))
-    one_hot = bins[..., None] == np.arange(config.num_values_per_sector)
-    return one_hot.reshape(lead + shape).astype(np.float32)

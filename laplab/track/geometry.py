@@ -301,13 +301,19 @@ def track_from_route(route: object, name: str, source: str = "array",
     return Track(name, array[:, 0:2].copy(), array[:, 2:4].copy(), array[:, 4:6].copy(), source=source)
 
 
-def load_route_file(path: str | Path, remove_repeats: bool = True, name: str | None = None) -> Track:
-    """Load and validate a DeepRacer ``.npy`` route file (its size is checked before it is read)."""
-    path = Path(path)
+def read_route_file(path: Path) -> np.ndarray:
+    """The array of a ``.npy`` route file, mapped read-only (:func:`validate_route` checks its size
+    before anything is read); :class:`TrackError` when the file is missing or not a readable array."""
     if not path.is_file():
         raise TrackError(f"{path}: no such track file.")
     try:
-        array = np.load(path, allow_pickle=False, mmap_mode="r")
+        return np.load(path, allow_pickle=False, mmap_mode="r")
     except Exception as exc:  # numpy raises several kinds for corrupt files
         raise TrackError(f"{path}: not a readable .npy array ({exc}).") from None
+
+
+def load_route_file(path: str | Path, remove_repeats: bool = True, name: str | None = None) -> Track:
+    """Load and validate a DeepRacer ``.npy`` route file (its size is checked before it is read)."""
+    path = Path(path)
+    array = read_route_file(path)
     return track_from_route(array, name or path.stem, source=str(path), remove_repeats=remove_repeats)

@@ -10,7 +10,7 @@ its response folds into the speed profile's limits). Method:
    rule: the line may cross a border by half the wheel track less ``margin``, the inner wheels on the road).
 3. Minimum curvature: minimise ``sum kappa_i^2`` (finite-difference curvature of the line)
    by Gauss-Newton: each step a box-constrained QP in ``alpha`` with the sparse Jacobian,
-   solved by a small interior-point method on scipy's sparse LU.
+   solved by :func:`laplab.track.box_qp.solve_box_qp` (interior point on scipy's sparse LU).
 4. Minimum time (``refine_min_time``): trust-region QP steps on the lap time of
    :mod:`laplab.track.speed_profile` (plus a roughness price), then a bump coordinate descent.
 
@@ -32,6 +32,7 @@ import scipy.sparse as sp
 from scipy.interpolate import CubicSpline
 from scipy.sparse.linalg import splu
 
+from laplab.track.box_qp import solve_box_qp
 from laplab.track.geometry import Track, track_from_route
 from laplab.track.speed_profile import (SpeedProfile, SpeedProfileSettings, closed_lap_time,
                                         compute_speed_profile, limit_arguments, offset_bump_descent,
@@ -182,53 +183,6 @@ def distance_to_polyline(points: np.ndarray, polyline: np.ndarray) -> np.ndarray
         diff = rel - t[..., None] * seg[None]
         out[start:start + 256] = np.sqrt((diff * diff).sum(-1).min(axis=1))
     return out
-
-
-def solve_box_qp(hessian: sp.spmatrix, gradient: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                 tolerance: float = 1e-9, max_iterations: int = 80) -> np.ndarray:
-    """Minimise ``0.5 x'Hx + g'x`` subject to ``lower <= x <= upper`` (all (n,), H sparse (n, n) SPD).
-
-    Mehrotra predictor-corrector interior point; each iteration factorises ``H + diag`` once (sparse LU)
-    and solves twice. Needs ``lower < upper`` everywhere.
-    """
-    n = gradient.shape[0]
-    hessian = sp.csc_matrix(hessian + sp.identity(n, format="csc") * 0.0)  # diagonal stored explicitly
-    hessian.sort_indices()
-    rows = np.repeat(np.arange(n), np.diff(hessian.indptr))  # column of each stored entry (CSC)
-    diagonal_at = np.flatnonzero(hessian.indices == rows)
-    x = 0.5 * (lower + upper)
-    scale = max(1.0, float(np.abs(hessian @ x + gradient).max()))
-    z_low, z_up = np.full(n, scale), np.full(n, scale)
-    for _ in range(max_iterations):
-        s_low, s_up = x - lower, upper - x
-        residual = hessian @ x + gradient - z_low + z_up
-        mu = (s_low @ z_low + s_up @ z_up) / (2 * n)
-        if np.abs(residual).max() <= tolerance * scale and mu <= tolerance * scale * 1e-3:
-            break
-        data = hessian.data.copy()
-        data[diagonal_at] += z_low / s_low + z_up / s_up
-        factor = splu(sp.csc_matrix((data, hessian.indices, hessian.indptr), shape=(n, n)))
-
-        def direction(r_low, r_up):
-            dx = factor.solve(-residual + r_low / s_low - r_up / s_up)
-            return dx, (r_low - z_low * dx) / s_low, (r_up + z_up * dx) / s_up
-
-        def step_length(dx, dz_low, dz_up):
-            ratios = [1.0]
-            for value, delta in ((s_low, dx), (s_up, -dx), (z_low, dz_low), (z_up, dz_up)):
-                shrinking = delta < 0
-                if shrinking.any():
-                    ratios.append(float((-value[shrinking] / delta[shrinking]).min()))
-            return min(ratios)
-
-        dx_a, dzl_a, dzu_a = direction(-s_low * z_low, -s_up * z_up)
-        t_a = step_length(dx_a, dzl_a, dzu_a)
-        mu_a = ((s_low + t_a * dx_a) @ (z_low + t_a * dzl_a) + (s_up - t_a * dx_a) @ (z_up + t_a * dzu_a)) / (2 * n)
-        sigma_mu = (mu_a / mu) ** 3 * mu
-        dx, dzl, dzu = direction(sigma_mu - s_low * z_low - dx_a * dzl_a, sigma_mu - s_up * z_up + dx_a * dzu_a)
-        t = min(1.0, 0.99 * step_length(dx, dzl, dzu))
-        x, z_low, z_up = x + t * dx, z_low + t * dzl, z_up + t * dzu
-    return x
 
 
 def _smooth_below(values: np.ndarray, half_window: int) -> np.ndarray:

@@ -2,10 +2,10 @@
 
 A line depends on the track's arrays, the car, the margin and the solver's settings, and on the
 solver itself: the cache key is a SHA-256 of all of these, the last as the source text of
-:mod:`laplab.track.raceline` and :mod:`laplab.track.speed_profile` (a changed solver never serves
-stale lines). Each entry is one ``.npz`` (every :class:`RaceLine` array and number, plus a JSON
-description of what it was solved for), written atomically; an unreadable entry is solved again
-and replaced. Entries also stay in memory for the life of the process.
+:mod:`laplab.track.raceline`, :mod:`laplab.track.box_qp` and :mod:`laplab.track.speed_profile`
+(a changed solver never serves stale lines). Each entry is one ``.npz`` (every :class:`RaceLine`
+array and number, plus a JSON description of what it was solved for), written atomically; an
+unreadable entry is solved again and replaced. Entries also stay in memory for the life of the process.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import numpy as np
 
 from laplab.settings import current_settings
 from laplab.store.atomic import atomic_write_with
+from laplab.track import box_qp as box_qp_module
 from laplab.track import raceline as raceline_module
 from laplab.track import speed_profile as speed_profile_module
 from laplab.track.geometry import Track
@@ -43,7 +44,7 @@ def cache_folder() -> Path:
 @lru_cache(maxsize=1)
 def _solver_fingerprint() -> bytes:
     digest = hashlib.sha256()
-    for module in (raceline_module, speed_profile_module):
+    for module in (raceline_module, box_qp_module, speed_profile_module):
         digest.update(Path(module.__file__).read_bytes())
     return digest.digest()
 

@@ -8,10 +8,8 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-import numpy as np
-
 from laplab.settings import current_settings
-from laplab.track.geometry import Track, TrackError, load_route_file, validate_route
+from laplab.track.geometry import Track, TrackError, load_route_file, read_route_file, validate_route
 
 BUILTIN_DIR = Path(__file__).resolve().parent / "data"
 DEFAULT_TRACK = "classic_2018"
@@ -78,13 +76,7 @@ def _load_cached(path: str, remove_repeats: bool) -> Track:
 def import_track(path: str | os.PathLike, name: str | None = None, overwrite: bool = False) -> Path:
     """Validate a route file and copy it into the user's track folder; returns the new path."""
     path = Path(path)
-    if not path.is_file():
-        raise TrackError(f"{path}: no such track file.")
-    try:
-        array = np.load(path, allow_pickle=False)
-    except Exception as exc:
-        raise TrackError(f"{path}: not a readable .npy array ({exc}).") from None
-    validate_route(array, str(path))
+    validate_route(read_route_file(path), str(path))
     name = name or path.stem
     if not name.replace("_", "").replace("-", "").isalnum():
         raise TrackError(f"track name {name!r} may hold only letters, digits, '_' and '-'.")

@@ -16,7 +16,7 @@ from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import ModelFolder, model_folder, validate_model_name
 from laplab.store.lock import LOCK_FILE_NAME, ModelBusyError, ModelLock
 from laplab.train.config import TrainConfig
-from laplab.train.model_files import check_model_files
+from laplab.train.model_files import check_model_files, write_model_files
 from laplab.train.errors import JobError
 from laplab.track.geometry import Track
 from laplab.track.registry import load_track
@@ -72,10 +72,7 @@ def create_training(name: str, config: TrainConfig, init_weights: dict | None = 
     staging = ModelFolder(folder.root.parent / f".create-{name}-{secrets.token_hex(4)}")
     try:
         staging.create()
-        staging.write_model_metadata(config.model_metadata.to_dict())
-        staging.write_hyperparameters(config.hyper().to_dict())
-        staging.write_reward_function(reward_file(config).read_text())
-        staging.write_laplab_config(config.to_dict())
+        write_model_files(staging, config, reward_file(config).read_text())
         lock = take_lock(staging)  # the lock file moves with the folder (same inode)
         try:
             os.rename(staging.root, folder.root)  # atomic; fails when the name was taken meanwhile
@@ -102,10 +99,7 @@ def create_training_in_place(name: str, config: TrainConfig, init_weights: dict 
     folder.create()
     lock = take_lock(folder)
     try:
-        folder.write_model_metadata(config.model_metadata.to_dict())
-        folder.write_hyperparameters(config.hyper().to_dict())
-        folder.write_reward_function(reward_file(config).read_text())
-        folder.write_laplab_config(config.to_dict())
+        write_model_files(folder, config, reward_file(config).read_text())
     except BaseException:
         lock.release()
         raise

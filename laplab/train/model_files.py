@@ -6,7 +6,8 @@ read) and ``laplab.json`` (the job's :class:`~laplab.train.config.TrainConfig`, 
 trains from). A model_metadata.json edited after training (another action space, a continuous one,
 a camera) would be ignored by evaluation and copied by export into an archive that import refuses;
 a garbage hyperparameters.json would be ignored by ``--resume``. :func:`check_model_files` refuses
-both up front with one paragraph naming the file and the key that differs.
+both up front with one paragraph naming the file and the key that differs. :func:`write_model_files`
+writes them, with the reward function, from one config when a model folder is made.
 """
 
 from __future__ import annotations
@@ -21,6 +22,15 @@ from laplab.train.config import TrainConfig
 class ModelFilesError(UserError):
     """A model folder's model_metadata.json or hyperparameters.json that cannot be read or does not
     match laplab.json; ``field`` is ``"<file>: <key>"`` (or the file alone when it cannot be read)."""
+
+
+def write_model_files(folder: ModelFolder, config: TrainConfig, reward_source: str) -> None:
+    """Write a new model's files from one config: model_metadata.json, ip/hyperparameters.json, the
+    reward function (its source text) and laplab.json (the caller makes the folder and holds its lock)."""
+    folder.write_model_metadata(config.model_metadata.to_dict())
+    folder.write_hyperparameters(config.hyper().to_dict())
+    folder.write_reward_function(reward_source)
+    folder.write_laplab_config(config.to_dict())
 
 
 def check_model_files(folder: ModelFolder, config: TrainConfig | None = None, what: str = "use",

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from laplab.analysis.loaders import ReportDataError, Trace, load_episode_log, load_evaluation, load_training_history
+from laplab.analysis.evaluations import load_evaluation
+from laplab.analysis.loaders import ReportDataError, Trace, load_episode_log, load_training_history
 from laplab.analysis.plots import PlotStyle, moving_average, plot_action_usage, reward_grid, reward_map_cell
 from laplab.store.layout import ModelFolder
 

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from laplab.analysis.loaders import load_evaluations, load_training_traces, traced_iterations
+from laplab.analysis.evaluations import load_evaluations
+from laplab.analysis.loaders import load_training_traces, traced_iterations
 from laplab.analysis.plots import _episode_segments
 from laplab.analysis.report import build_report
 from laplab.cli import main

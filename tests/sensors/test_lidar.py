@@ -5,17 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from laplab.sensors.lidar import (
-    DEFAULT_LIDAR,
-    LidarConfig,
-    LidarParams,
-    LidarWalls,
-    lidar_observation,
-    lidar_observation_shape,
-    parse_lidar_config,
-    scan,
-    scan_reference,
-)
+from laplab.sensors.lidar import DEFAULT_LIDAR, LidarParams, LidarWalls, scan, scan_reference
+from laplab.sensors.lidar_observation import LidarConfig, lidar_observation, lidar_observation_shape, parse_lidar_config
 
 TRACKS = Path(__file__).resolve().parents[2].parent / "shared" / "reference-tracks"
 

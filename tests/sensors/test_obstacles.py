@@ -13,8 +13,10 @@ from laplab.sensors.lidar import DEFAULT_LIDAR, LidarParams, LidarWalls, scan
 from laplab.sensors.obstacle_look import (BACK, BOT_CAR, BOX, BOX_SIZE, CAR_SIZE, EMPTY, LEFT, MODEL_CAR, RIGHT,
                                           ObstacleLook, face_colours, obstacle_boxes)
 from laplab.sensors.texture import build_track_texture
-from tests.sensors.test_camera import (CAMERA, TEXTURE, render_camera_reference, straight_route,
-                                       track_and_texture)  # noqa: F401 (fixture)
+from tests.sensors import test_camera
+from tests.sensors.test_camera import CAMERA, TEXTURE, render_camera_reference, straight_route
+
+track_and_texture = test_camera.track_and_texture  # the fixture of test_camera.py, shared here
 
 BOX_HALF = (BOX_SIZE[0] / 2, BOX_SIZE[1] / 2, BOX_SIZE[2])
 

@@ -17,8 +17,9 @@ from scipy.optimize import minimize
 
 from laplab.track import raceline as rl
 from laplab.track.geometry import track_from_route
+from laplab.track.box_qp import solve_box_qp
 from laplab.track.raceline import (FAST_SETTINGS, RaceLineSettings, compute_raceline, compute_raceline_for_route,
-                                   compute_raceline_for_track, solve_box_qp)
+                                   compute_raceline_for_track)
 from laplab.track.speed_profile import (SpeedProfileSettings, compute_speed_profile, limit_arguments,
                                         max_path_curvature, offset_objective, offset_objective_gradient)
 from laplab.track.raceline import line_clearance
