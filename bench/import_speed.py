@@ -59,7 +59,7 @@ def main() -> None:
     from laplab.train.jobs import create_training
 
     config = replace(TrainConfig(), model_metadata={**ModelMetadata().to_dict(), "sensor": ["FRONT_FACING_CAMERA"]})
-    create_training("camera", config).lock.release()
+    create_training("camera", config).close()
     folder = export_console("camera", out=work / "camera-console").folder
     size = sum(p.stat().st_size for p in (folder / "model").glob("*.ckpt.*"))
     print(f"rl_coach checkpoint: {size / 1e6:.1f} MB (model/*.ckpt.index, .data, .meta)")

@@ -26,13 +26,10 @@ DEFAULT_TRACKS = ["classic_2018", str(REFERENCE / "reinvent_base.npy"), str(REFE
 
 def train_until_lapped(name: str, config, budget_s: float, workers: int) -> dict:
     """Train until the first iteration whose evaluation completes every lap (on every track)."""
+    from laplab.cluster.launch import RayWorkers
     from laplab.train.jobs import create_training
 
-    trainer = create_training(name, replace(config, max_time_s=budget_s, workers=workers))
-    collector = None
-    if workers > 1:
-        from laplab.cluster.launch import attach_workers
-        collector = attach_workers(trainer, workers)
+    trainer = create_training(name, replace(config, max_time_s=budget_s, workers=workers), launcher=RayWorkers())
     first: dict = {}
 
     def on_iteration(report) -> None:
@@ -41,11 +38,8 @@ def train_until_lapped(name: str, config, budget_s: float, workers: int) -> dict
                          by_track=dict(report.eval_progress_by_track), lap=report.eval_lap_time)
 
     started = time.perf_counter()
-    try:
+    with trainer:  # its workers (more than one: on a local Ray) stop with it
         trainer.run(callbacks=(on_iteration,), should_stop=lambda: bool(first))
-    finally:
-        if collector is not None:
-            collector.close()
     return {"lapped": bool(first), "wall": first.get("wall", time.perf_counter() - started),
             "iterations": first.get("iterations"), "steps": first.get("steps"), "lap": first.get("lap")}
 

@@ -40,9 +40,11 @@ import time
 from dataclasses import replace
 
 
-def make_trainer(name: str, sensor: str, episodes: int, workers: int, weights: dict | None = None,
-                 max_time_s: float = 20 * 60.0):
-    """A training of ``sensor`` with ``episodes`` per iteration; ``weights``: its policy network's to start with."""
+def make_trainer(name: str, sensor: str, episodes: int, workers: int | None, weights: dict | None = None,
+                 max_time_s: float = 20 * 60.0, ray_address: str | None = None):
+    """A training of ``sensor`` with ``episodes`` per iteration, collected by ``workers`` rollout workers
+    on Ray (even one; None: in-process); ``weights``: its policy network's to start with. Close it after."""
+    from laplab.cluster.launch import RayWorkers
     from laplab.env.metadata import ModelMetadata
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import create_training
@@ -50,7 +52,8 @@ def make_trainer(name: str, sensor: str, episodes: int, workers: int, weights: d
     metadata = replace(ModelMetadata(), sensors=(sensor,)).to_dict()
     base = replace(TrainConfig(), model_metadata=metadata, max_time_s=max_time_s)
     hyper = {**base.hyper().to_dict(), "num_episodes_between_training": episodes}
-    trainer = create_training(name, replace(base, hyperparameters=hyper, workers=workers))
+    launcher = None if workers is None else RayWorkers(ray_address, ray_for_one=True)
+    trainer = create_training(name, replace(base, hyperparameters=hyper, workers=workers or 1), launcher=launcher)
     if weights is not None:
         trainer.learner.policy_network.load_state_dict(weights)
     return trainer
@@ -58,8 +61,9 @@ def make_trainer(name: str, sensor: str, episodes: int, workers: int, weights: d
 
 def trained_weights(sensor: str, episodes: int, seconds: float) -> dict:
     """The policy network's weights after ``seconds`` of in-process training."""
-    trainer = make_trainer(f"pretrain-{sensor.lower().replace('_', '-')}", sensor, episodes, 1, max_time_s=seconds)
-    result = trainer.run()
+    with make_trainer(f"pretrain-{sensor.lower().replace('_', '-')}", sensor, episodes, None,
+                      max_time_s=seconds) as trainer:
+        result = trainer.run()
     print(f"{sensor:20s} pre-trained {result.iterations} iterations in {seconds:g} s", flush=True)
     return {k: v.clone() for k, v in trainer.learner.policy_network.state_dict().items()}
 
@@ -77,7 +81,7 @@ def steps_per_second(trainer, iterations: int) -> tuple[float, float, dict[str, 
         steps += batch.env_steps
         batched += batch.valid.shape[0]
         driving += batch.wall_seconds
-        for part, seconds in getattr(trainer.collector, "last_timing", {}).items():
+        for part, seconds in (trainer.collector.last_timing if trainer.collector is not None else {}).items():
             parts[part] = parts.get(part, 0.0) + 1000 * seconds / iterations
     wall = time.perf_counter() - started
     parts["per_step"] = 1000 * wall / batched
@@ -129,20 +133,14 @@ def compare_training(sensor: str, args) -> None:
     """Whole training, in-process against Ray x1 (and xN), ``args.repeats`` alternated runs each."""
     from statistics import median
 
-    from laplab.cluster.launch import attach_workers
-
     figures: dict = {}
     for repeat in range(args.repeats):
         for workers in ["in-process", *args.workers]:
             label = workers if workers == "in-process" else f"ray x{workers}"
             name = f"train-{repeat}-{workers}-{sensor.lower().replace('_', '-')}"
-            trainer = make_trainer(name, sensor, args.episodes, 1 if workers == "in-process" else workers,
-                                   max_time_s=args.training_seconds)
-            if workers == "in-process":
+            with make_trainer(name, sensor, args.episodes, None if workers == "in-process" else workers,
+                              max_time_s=args.training_seconds, ray_address=args.ray_address) as trainer:
                 rate, iterations = training_steps_per_second(trainer)
-            else:
-                with attach_workers(trainer, workers, args.ray_address):
-                    rate, iterations = training_steps_per_second(trainer)
             figures.setdefault(workers, []).append(rate)
             print(f"{sensor:20s} run {repeat} {label:11s} {rate:9.1f} training env steps/s "
                   f"({iterations} whole iterations in a {args.training_seconds:g} s job)", flush=True)
@@ -170,7 +168,6 @@ def main() -> None:
     import ray
 
     from laplab.cluster.collector import connect_ray
-    from laplab.cluster.launch import attach_workers
 
     started_ray = connect_ray(args.ray_address, max(args.workers))
     print(f"cpus {os.cpu_count()}, ray cluster cpus {ray.cluster_resources().get('CPU')}, "
@@ -181,15 +178,15 @@ def main() -> None:
             continue
         figures = {}
         weights = trained_weights(sensor, args.episodes, args.trained_seconds) if args.trained_seconds > 0 else None
-        trainer = make_trainer(f"inproc-{sensor.lower().replace('_', '-')}", sensor, args.episodes, 1, weights)
-        figures["in-process"], share, parts = steps_per_second(trainer, args.iterations)
+        name = f"inproc-{sensor.lower().replace('_', '-')}"
+        with make_trainer(name, sensor, args.episodes, None, weights) as trainer:
+            figures["in-process"], share, parts = steps_per_second(trainer, args.iterations)
         per_step = {"in-process": parts["per_step"]}
         print(f"{sensor:20s} in-process  {figures['in-process']:9.1f} env steps/s (driving {share:.0%}; "
               f"{per_step['in-process']:.2f} ms per batched step)", flush=True)
         for workers in args.workers:
-            trainer = make_trainer(f"ray{workers}-{sensor.lower().replace('_', '-')}", sensor, args.episodes, workers,
-                                   weights)
-            with attach_workers(trainer, workers, args.ray_address):
+            with make_trainer(f"ray{workers}-{sensor.lower().replace('_', '-')}", sensor, args.episodes, workers,
+                              weights, ray_address=args.ray_address) as trainer:
                 figures[workers], share, parts = steps_per_second(trainer, args.iterations)
             per_step[workers] = parts.pop("per_step")
             print(f"{sensor:20s} ray x{workers:<5d} {figures[workers]:9.1f} env steps/s (driving {share:.0%}; "

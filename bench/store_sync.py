@@ -58,11 +58,11 @@ def main() -> None:
 
     warmup = create_training("warmup", replace(config, max_episodes=4))  # compiles numba kernels, warms torch
     warmup.run()
-    warmup.lock.release()
+    warmup.close()
     started = time.perf_counter()
     local = create_training("local-run", config)
     local_result = local.run()
-    local.lock.release()
+    local.close()
     local_s = time.perf_counter() - started
 
     session = StoreSession("s3://bench/models", "bench")
@@ -72,7 +72,7 @@ def main() -> None:
     remote = create_training("store-run", config, listeners=listeners)
     remote_result = remote.run()
     session.finish()
-    remote.lock.release()
+    remote.close()
     session.close()
     store_s = time.perf_counter() - started
     sync = listeners[0]

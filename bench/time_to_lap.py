@@ -69,7 +69,7 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
                 precision: str = "auto", hyperparameters: dict | None = None, console: str | None = None,
                 workers: int = 1, device: str = "cpu", ray_address: str | None = None, car: str = "",
                 race: str | None = None, reward: str | None = None) -> dict:
-    from laplab.cluster.launch import uses_ray
+    from laplab.cluster.launch import RayWorkers, uses_ray
     from laplab.env.metadata import ModelMetadata
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import create_training
@@ -85,7 +85,11 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
     if hyperparameters:
         config = replace(config, hyperparameters={**config.hyper().to_dict(), **hyperparameters})
     name = f"bench-{Path(track).stem.replace('_', '-')}-{seed}-{int(time.time() * 1000) % 10**8}"
-    trainer = create_training(name, config, device=device)
+    starting = time.perf_counter()  # its workers start before the clock, as `laplab train` starts them
+    trainer = create_training(name, config, device=device, launcher=RayWorkers(ray_address))
+    if uses_ray(workers, ray_address):
+        print(f"(seed {seed}: {workers} rollout workers started in {time.perf_counter() - starting:.1f} s with the "
+              "model folder, before the clock)", flush=True)
     first: dict = {}
     end: dict = {}
     seconds: dict[str, float] = {}
@@ -99,20 +103,10 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
             first.update(wall=report.elapsed_s, iterations=report.iteration, steps=report.env_steps,
                          lap=report.eval_lap_time, best=report.best_lap_time)
 
-    collector = None
-    if uses_ray(workers, ray_address):  # started before the clock, as `laplab train` starts its workers
-        from laplab.cluster.launch import attach_workers
-        starting = time.perf_counter()
-        collector = attach_workers(trainer, workers, ray_address)
-        print(f"(seed {seed}: {workers} rollout workers started in {time.perf_counter() - starting:.1f} s, "
-              "before the clock)", flush=True)
     started = time.perf_counter()
     done = lambda: bool(first) and time.perf_counter() - started >= min_time_s
-    try:
+    with trainer:  # the workers stop with it
         result = trainer.run(callbacks=(on_iteration,), should_stop=done)
-    finally:
-        if collector is not None:
-            collector.close()
     elapsed = time.perf_counter() - started
     total = sum(seconds.values()) or 1.0
     return {"car": trainer.config.car, "lapped": bool(first), "wall": first.get("wall", float("nan")), "iterations": first.get("iterations", result.iterations),

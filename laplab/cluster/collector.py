@@ -161,7 +161,8 @@ def _is_worker_death(exc: BaseException) -> bool:
 
 
 class RayCollector:
-    """The trainer's collection step on Ray workers (``trainer.collector``). ``setups``: one
+    """The trainer's collection step on Ray workers (a :class:`~laplab.train.collaborators.Collector`,
+    made by :class:`laplab.cluster.launch.RayWorkers`; the trainer closes it). ``setups``: one
     :class:`WorkerSetup` per worker; ``notify(message)`` hears about restarts; ``on_status(records)``
     gets the workers' :class:`~laplab.cluster.status.WorkerRecord` list whenever it changes."""
 

@@ -1,7 +1,7 @@
 """Console jobs on a Ray cluster: ``laplab serve --ray-address ADDR [--rollout-workers N]``.
 
 A console started with a cluster address runs the rollout workers of its training jobs (train,
-clone, resume) on that cluster, with the CLI's code (:func:`laplab.cluster.launch.attach_workers`);
+clone, resume) on that cluster, with the CLI's code (:class:`laplab.cluster.launch.RayWorkers`);
 the learner stays in the job's confined process on the console's machine. Such a job keeps the
 machine's network (bubblewrap's ``--share-net``) and nothing else: no database, no secret key, no
 other user's folder. Since its process sees neither the machine's ``/tmp`` nor ``/dev/shm`` (where a
@@ -113,12 +113,13 @@ def job_worker_count(requested: int | None, cluster: RayCluster | None, episodes
     return requested
 
 
-def start_job_workers(trainer, cluster: dict, workers: int, say: Callable[[str], None] = print, watch=None):
-    """A console job's rollout workers on ``cluster`` (the job spec's ``cluster``: address, workers):
-    restarts go to ``say`` (the job log) and the model folder's ``logs/workers.log``; ``watch`` (a
-    :class:`laplab.reward.watchdog.WatchdogLimits`) limits their reward calls as the job's own. Returns
-    the collector (close it when the job ends)."""
-    from laplab.cluster.launch import attach_workers, logged_notify
-    say(f"starting {workers} rollout worker{'s' if workers > 1 else ''} on the Ray cluster at {cluster['address']}")
-    timeouts = () if watch is None else (watch.timeout_s, watch.wait_timeout_s)
-    return attach_workers(trainer, workers, cluster["address"], logged_notify(trainer, say), *timeouts)
+def job_workers(cluster: dict, say: Callable[[str], None] = print, watch=None):
+    """How a console job's rollout workers start on ``cluster`` (the job spec's ``cluster``: address,
+    workers), as a :class:`laplab.cluster.launch.RayWorkers` for the job's ``create_training`` /
+    ``resume_training`` (the job's ``config.workers`` of them): their start and restarts go to
+    ``say`` (the job log; restarts also to the model folder's ``logs/workers.log``); ``watch`` (a
+    :class:`laplab.reward.watchdog.WatchdogLimits`) limits their reward calls as the job's own."""
+    from laplab.cluster.launch import RayWorkers
+    timeouts = {} if watch is None else {"reward_timeout_s": watch.timeout_s,
+                                         "reward_wait_timeout_s": watch.wait_timeout_s}
+    return RayWorkers(cluster["address"], notify=say, announce=say, **timeouts)

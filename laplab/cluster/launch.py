@@ -1,15 +1,16 @@
-"""Turn a :class:`~laplab.train.trainer.Trainer` into a learner with rollout workers on Ray.
+"""Rollout workers on Ray for a training job, given to its trainer when it is built.
 
-:func:`attach_workers` checks the job (enough workers for its tracks and episodes, the reward
-function on every track), gives worker i the track ``tracks[i % len(tracks)]`` (as
-deepracer-for-cloud's ``DR_TRAIN_MULTI_CONFIG``) and its share of the iteration's episodes, starts
-the workers and plugs them into the trainer; a multi-track job also evaluates on every track.
+:class:`RayWorkers` checks the job (enough workers for its tracks and episodes, the reward function
+on every track) before its folder is written, then gives worker i the track ``tracks[i % len(tracks)]``
+(as deepracer-for-cloud's ``DR_TRAIN_MULTI_CONFIG``) and its share of the iteration's episodes and
+starts the workers: the trainer's collector; a multi-track job also evaluates on every track.
 """
 
 from __future__ import annotations
 
 import os
 import time
+from dataclasses import dataclass
 from typing import Callable
 
 from laplab.cluster.collector import RayCollector
@@ -65,10 +66,11 @@ def validate_reward_on_tracks(config, reward_fn) -> None:
             raise report.error
 
 
-def logged_notify(trainer, say: Callable[[str], None]) -> Callable[[str], None]:
-    """A ``notify`` for :func:`attach_workers`: each message (a restart) to ``say`` and, time-stamped,
-    to the model folder's ``logs/workers.log``."""
-    log = trainer.folder.root / "logs" / "workers.log"
+def logged_notify(folder, say: Callable[[str], None]) -> Callable[[str], None]:
+    """A ``notify`` for the workers of the job writing ``folder`` (a
+    :class:`~laplab.store.layout.ModelFolder`): each message (a restart) to ``say`` and,
+    time-stamped, to the folder's ``logs/workers.log``."""
+    log = folder.root / "logs" / "workers.log"
 
     def notify(message: str) -> None:
         say(message)
@@ -78,27 +80,56 @@ def logged_notify(trainer, say: Callable[[str], None]) -> Callable[[str], None]:
     return notify
 
 
-def attach_workers(trainer, workers: int, ray_address: str | None = None,
-                   notify: Callable[[str], None] = lambda message: None,
-                   reward_timeout_s: float = 5.0, reward_wait_timeout_s: float = 60.0) -> RayCollector:
-    """Start ``workers`` rollout workers (on the cluster at ``ray_address``, or a local Ray) and
-    make them ``trainer``'s collection step. Returns the collector; ``close()`` it after the job.
-    The workers' state goes to the model folder's ``logs/workers.json`` (:mod:`laplab.cluster.status`)."""
-    config = trainer.config
-    check_workers(config, workers)
-    validate_reward_on_tracks(config, trainer.reward_fn)
-    source = trainer.reward_fn.source
-    path = str(getattr(trainer.reward_fn, "path", "<string>"))
-    setups = worker_setups(config, source, path, workers, reward_timeout_s, reward_wait_timeout_s)
-    on_status = (lambda records: None)
-    if getattr(trainer, "folder", None) is not None:  # the model page's table (laplab.cluster.status)
-        status_path, since = workers_file(trainer.folder.root), int(trainer.iteration)
-        on_status = lambda records: write_workers(status_path, records, since)  # noqa: E731
-    collector = RayCollector(setups, notify, ray_address, on_status).start()
-    trainer.collector = collector
-    if len(config.training_tracks()) > 1:
-        trainer.evaluator = MultiTrackEvaluator(config, trainer.reward_fn, config.training_tracks())
-    return collector
+def _quiet(message: str) -> None:
+    """Says nothing (the default of :class:`RayWorkers`' ``notify`` and ``announce``)."""
+
+
+@dataclass(frozen=True)
+class RayWorkers:
+    """How a training job's rollout workers start: a :class:`~laplab.train.collaborators.WorkerLauncher`
+    for :func:`laplab.train.jobs.create_training` and :func:`~laplab.train.jobs.resume_training`.
+
+    The job's ``config.workers`` workers run on the cluster at ``ray_address`` (None: a local Ray);
+    a job with one worker and no address collects in-process and Ray is not imported. ``announce``
+    hears the line saying the workers start; ``notify`` each restart (also time-stamped in the
+    folder's ``logs/workers.log``); ``reward_timeout_s`` and ``reward_wait_timeout_s`` limit the
+    workers' reward calls as the job's own watchdog does (:class:`laplab.reward.watchdog.WatchdogLimits`);
+    ``ray_for_one``: a one-worker job collects on Ray too (benchmarks measure Ray's overhead so).
+    """
+
+    ray_address: str | None = None
+    notify: Callable[[str], None] = _quiet
+    announce: Callable[[str], None] = _quiet
+    reward_timeout_s: float = 5.0
+    reward_wait_timeout_s: float = 60.0
+    ray_for_one: bool = False
+
+    def check(self, config, reward_fn) -> None:
+        """Enough workers for the job's tracks and not more than its episodes; the reward function
+        validated on every track (the first one already is), before the job writes anything."""
+        if config.workers > 1 or len(config.training_tracks()) > 1:
+            check_workers(config, config.workers)
+        validate_reward_on_tracks(config, reward_fn)
+
+    def start(self, config, reward_fn, folder, iteration: int) -> tuple[RayCollector | None,
+                                                                         MultiTrackEvaluator | None]:
+        """Start the workers of the job in ``folder`` (at ``iteration``; their state goes to its
+        ``logs/workers.json``, :mod:`laplab.cluster.status`, for the model page): the trainer's
+        collector (its owner closes it) and, for a multi-track job, an evaluator on every track.
+        (None, None) for an in-process job."""
+        workers = config.workers
+        if not (self.ray_for_one or uses_ray(workers, self.ray_address)):
+            return None, None
+        tracks = config.training_tracks()
+        evaluator = MultiTrackEvaluator(config, reward_fn, tracks) if len(tracks) > 1 else None
+        setups = worker_setups(config, reward_fn.source, str(reward_fn.path), workers, self.reward_timeout_s,
+                               self.reward_wait_timeout_s)
+        status_path = workers_file(folder.root)
+        self.announce(f"starting {workers} rollout worker{'s' if workers > 1 else ''} on "
+                      f"{'the Ray cluster at ' + self.ray_address if self.ray_address else 'a local Ray'}")
+        collector = RayCollector(setups, logged_notify(folder, self.notify), self.ray_address,
+                                 lambda records: write_workers(status_path, records, iteration)).start()
+        return collector, evaluator
 
 
 def resolve_device(name: str) -> str:

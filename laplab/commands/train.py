@@ -193,48 +193,47 @@ class _StopFlag:
             self._previous = {}
 
 
-def run_trainer(trainer, console: Console, quiet: bool, reward_timeout: float | None = None,
-                ray_address: str | None = None, stop: _StopFlag | None = None) -> int:
-    """Run ``trainer`` with the progress display, Ctrl-C handling, the reward watchdog and reports
-    to the job's supervisor (when there is one); with several workers (``trainer.config.workers``) or
-    a ``ray_address``, its episodes are collected by rollout workers on Ray. ``stop``: a flag entered
-    before the trainer was built (a Ctrl-C during set-up then stops the job at its first check)."""
-    from laplab.jobs.supervisor import job_limits, report
-    from laplab.reward.watchdog import RewardWatchdog, WatchdogLimits
-    from laplab.train.progress import ProgressPrinter
-    name = trainer.folder.name
-    report(folder=str(trainer.folder.root), model=name, what="training job",
-           resume=f"laplab train --resume {name}", reward_path=getattr(trainer.reward_fn, "path", None),
-           **({"iteration": trainer.iteration} if trainer.iteration else {}))
+def watch_limits(reward_timeout: float | None = None):
+    """The job's limits on reward calls (:class:`laplab.reward.watchdog.WatchdogLimits`): ``--reward-timeout``
+    or the supervisor's, for the job's own process and its rollout workers alike."""
+    from laplab.jobs.supervisor import job_limits
+    from laplab.reward.watchdog import WatchdogLimits
     limits = job_limits()
-    watch = WatchdogLimits(reward_timeout or limits.reward_timeout_s, limits.reward_wait_timeout_s)
-    collector = None
-    try:
-        collector = _start_workers(trainer, console, ray_address, watch)
-        printer = ProgressPrinter(console, trainer, quiet)
-        with (stop or _StopFlag()) as stop, RewardWatchdog(watch):
+    return WatchdogLimits(reward_timeout or limits.reward_timeout_s, limits.reward_wait_timeout_s)
+
+
+def run_trainer(trainer, console: Console, quiet: bool, reward_timeout: float | None = None,
+                stop: _StopFlag | None = None, location: str | None = None) -> int:
+    """Run ``trainer`` with the progress display, Ctrl-C handling, the reward watchdog and reports
+    to the job's supervisor (when there is one), then close it (its rollout workers, if it was given
+    any, stop; the model folder's lock is released). ``stop``: a flag entered before the trainer was
+    built (a Ctrl-C during set-up then stops the job at its first check); ``location``: where the
+    summary says the model is (an object store's URL; None: the model folder)."""
+    from laplab.jobs.supervisor import report
+    from laplab.reward.watchdog import RewardWatchdog
+    from laplab.train.progress import ProgressPrinter
+    with trainer:  # the job is over when this ends: workers stopped, the folder free for the next job
+        name = trainer.folder.name
+        report(folder=str(trainer.folder.root), model=name, what="training job",
+               resume=f"laplab train --resume {name}", reward_path=trainer.reward_fn.path,
+               **({"iteration": trainer.iteration} if trainer.iteration else {}))
+        printer = ProgressPrinter(console, trainer, quiet, location=location)
+        with (stop or _StopFlag()) as stop, RewardWatchdog(watch_limits(reward_timeout)):
             result = trainer.run(callbacks=(printer, lambda r: report(iteration=r.iteration)),
                                  should_stop=stop.event.is_set)
-    finally:
-        if collector is not None:
-            collector.close()
-        if getattr(trainer, "lock", None) is not None:
-            trainer.lock.release()  # the job is over: the folder is free for the next one
     printer.summary(result)
     return 1 if result.error else 0
 
 
-def _start_workers(trainer, console: Console, ray_address: str | None, watch):
-    """Rollout workers on Ray for a job with several workers or a cluster address (else None: the
-    in-process path, Ray is not even imported). Restarts are printed and logged in the model folder."""
-    workers = trainer.config.workers
-    if workers <= 1 and not ray_address:
-        return None
-    from laplab.cluster.launch import attach_workers, logged_notify
-    notify = logged_notify(trainer, lambda message: console.print(f"[yellow]{message}[/yellow]"))
-    console.print(f"starting {workers} rollout worker{'s' if workers > 1 else ''} on "
-                  f"{'the Ray cluster at ' + ray_address if ray_address else 'a local Ray'}")
-    return attach_workers(trainer, workers, ray_address, notify, watch.timeout_s, watch.wait_timeout_s)
+def _workers(args: argparse.Namespace, console: Console):
+    """How the job's rollout workers start (:class:`laplab.cluster.launch.RayWorkers`): on Ray for
+    several workers or a cluster address, else none (the in-process path: Ray is not even imported).
+    Their start and restarts are printed, restarts also logged in the model folder."""
+    from laplab.cluster.launch import RayWorkers
+    watch = watch_limits(args.reward_timeout)
+    return RayWorkers(args.ray_address, notify=lambda message: console.print(f"[yellow]{message}[/yellow]"),
+                      announce=console.print, reward_timeout_s=watch.timeout_s,
+                      reward_wait_timeout_s=watch.wait_timeout_s)
 
 
 def _scale(args: argparse.Namespace) -> tuple[int | None, str]:
@@ -245,13 +244,6 @@ def _scale(args: argparse.Namespace) -> tuple[int | None, str]:
         from laplab.cluster.collector import check_reachable
         check_reachable(args.ray_address)
     return args.workers, resolve_device(args.device)
-
-
-def _check_workers(config) -> None:
-    """Enough workers for the tracks and not more than the episodes, before a folder is written."""
-    if config.workers > 1 or len(config.training_tracks()) > 1:
-        from laplab.cluster.launch import check_workers
-        check_workers(config, config.workers)
 
 
 def run_train(args: argparse.Namespace) -> int:
@@ -282,20 +274,18 @@ def run_train(args: argparse.Namespace) -> int:
         request = train_request(args, args.name)
     workers, device = _scale(args)
     with _StopFlag() as stop, store_session(args, "train") as store:  # Ctrl-C while setting up: a clean stop
+        location = store.remote.url(args.resume or args.name) if store else None  # what the summary names
         if args.resume:
             listeners = store.resume_job(args.resume) if store else ()
             trainer = resume_training(args.resume, max_time, args.max_episodes,
                                       trust_reward=args.trust_reward, workers=workers, device=device,
-                                      listeners=listeners)
+                                      listeners=listeners, launcher=_workers(args, console))
             console.print(f"resuming {args.resume} at iteration {trainer.iteration} ({trainer.episodes} episodes)")
         else:
-            config = request.to_config()
-            _check_workers(config)
             listeners = store.create_job(args.name) if store else ()
-            trainer = create_training(args.name, config, listeners=listeners, device=device)
-        if store:
-            trainer.location = store.remote.url(trainer.folder.name)  # what the summary names
-        return run_trainer(trainer, console, args.quiet, args.reward_timeout, args.ray_address, stop)
+            trainer = create_training(args.name, request.to_config(), listeners=listeners, device=device,
+                                      launcher=_workers(args, console))
+        return run_trainer(trainer, console, args.quiet, args.reward_timeout, stop, location)
 
 
 def run_clone(args: argparse.Namespace) -> int:
@@ -310,10 +300,9 @@ def run_clone(args: argparse.Namespace) -> int:
             store.pull(args.source, ("best",), without_traces)
         config, weights = clone_config(args.source, {**_overrides(args), "workers": workers},
                                        trust_reward=args.trust_reward)
-        _check_workers(config)
         listeners = store.create_job(args.name) if store else ()
-        trainer = create_training(args.name, config, init_weights=weights, listeners=listeners, device=device)
+        location = store.remote.url(args.name) if store else None  # what the summary names
+        trainer = create_training(args.name, config, init_weights=weights, listeners=listeners, device=device,
+                                  launcher=_workers(args, console))
         console.print(f"cloned {args.source} -> {args.name}")
-        if store:
-            trainer.location = store.remote.url(args.name)  # what the summary names
-        return run_trainer(trainer, console, args.quiet, args.reward_timeout, args.ray_address, stop)
+        return run_trainer(trainer, console, args.quiet, args.reward_timeout, stop, location)

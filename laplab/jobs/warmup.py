@@ -66,7 +66,8 @@ def main(argv: list[str] | None = None) -> int:
         for name, config in (("warmup", TrainConfig()), ("warmup-camera", camera)):
             config = replace(config, max_episodes=2, max_time_s=600.0,
                              hyperparameters={**config.hyper().to_dict(), **tiny})
-            create_training(name, config).run()
+            with create_training(name, config) as trainer:  # its lock is released before the folder goes
+                trainer.run()
     (cache / READY_MARKER).write_text("ok\n")
     return 0
 

@@ -140,11 +140,19 @@ def _train(files: JobFiles, spec: dict) -> None:
     if params.get("workers") and not cluster:
         print(f"this console has no Ray cluster now: the job collects in-process, not with {params['workers']} "
               "rollout workers", flush=True)
+    from laplab.jobs.supervisor import job_limits, report
+    from laplab.reward.watchdog import RewardWatchdog, WatchdogLimits
+    limits = job_limits()
+    watch = WatchdogLimits(limits.reward_timeout_s, limits.reward_wait_timeout_s)
+    launcher = None
+    if cluster:  # the workers start once the folder is written, and stop when the trainer is closed
+        from laplab.cluster.console import job_workers
+        launcher = job_workers(cluster, lambda message: print(message, flush=True), watch)
     if kind == "resume":
         # an imported model's reward needs trust to run: in the console's sandbox it runs confined like
         # every user's reward (the trust rule guards a CLI user's own account); unconfined, it does not
         trainer = resume_training(name, params.get("max_time_s"), workers=workers,
-                                  trust_reward=bool(spec.get("sandboxed")))
+                                  trust_reward=bool(spec.get("sandboxed")), launcher=launcher)
     else:
         reward_path = str(files.folder / "reward_function.py") if (files.folder / "reward_function.py").exists() else None
         given = {k: v for k, v in params.items() if k != "source"}
@@ -153,32 +161,21 @@ def _train(files: JobFiles, spec: dict) -> None:
             values = request.config_values()
             changed = {*given, "workers", *(("reward_path",) if reward_path else ())} & set(values)
             config, weights = clone_config(params["source"], {k: values[k] for k in changed})
-            trainer = create_training_in_place(name, config, init_weights=weights)
+            trainer = create_training_in_place(name, config, init_weights=weights, launcher=launcher)
         else:
-            trainer = create_training_in_place(name, request.to_config())
-    from laplab.jobs.supervisor import job_limits, report
-    from laplab.reward.watchdog import RewardWatchdog, WatchdogLimits
-    # as `laplab train` does: reward output beyond the cap goes to the model folder's log from here on
-    report(folder=str(trainer.folder.root), model=name, what="training job", iteration=trainer.iteration)
-    limits = job_limits()
-    watch = WatchdogLimits(limits.reward_timeout_s, limits.reward_wait_timeout_s)
-    trainer.subscribe(LiveFeed(files, trainer))
-    trainer.subscribe(PhaseFeed(files))
-    files.event("started", iteration=trainer.iteration)
+            trainer = create_training_in_place(name, request.to_config(), launcher=launcher)
+    with trainer:  # its rollout workers (if any) stop and the folder's lock is released when the job ends
+        # as `laplab train` does: reward output beyond the cap goes to the model folder's log from here on
+        report(folder=str(trainer.folder.root), model=name, what="training job", iteration=trainer.iteration)
+        trainer.subscribe(LiveFeed(files, trainer))
+        trainer.subscribe(PhaseFeed(files))
+        files.event("started", iteration=trainer.iteration)
 
-    def on_iteration(report) -> None:
-        files.event("iteration", report=report.to_dict())
+        def on_iteration(report) -> None:
+            files.event("iteration", report=report.to_dict())
 
-    collector = None
-    try:
-        if cluster:
-            from laplab.cluster.console import start_job_workers
-            collector = start_job_workers(trainer, cluster, workers, lambda message: print(message, flush=True), watch)
         with RewardWatchdog(watch):  # the per-step limit on reward calls, as on the command line
             result = trainer.run(callbacks=(on_iteration,), should_stop=files.should_stop)
-    finally:
-        if collector is not None:
-            collector.close()
     summary = {"stop_reason": result.stop_reason, "iterations": result.iterations, "episodes": result.episodes,
                "env_steps": result.env_steps, "elapsed_s": result.elapsed_s, "best_lap_time": result.best_lap_time}
     from laplab.jobs.sandbox import reward_output_summary

@@ -22,6 +22,7 @@ from laplab.track.geometry import Track
 from laplab.track.registry import load_track
 from laplab.train.archive import check_reward_trusted, check_trainable
 from laplab.train.checkpoint_read import read_checkpoint, read_resume_state
+from laplab.train.collaborators import WorkerLauncher
 from laplab.train.recorder import ModelFolderRecorder, RobomakerLogRecorder
 from laplab.train.trainer import Trainer, load_weights_only
 
@@ -52,11 +53,14 @@ def load_and_validate_reward(config: TrainConfig, track: Track, path: Path | Non
 
 
 def create_training(name: str, config: TrainConfig, init_weights: dict | None = None,
-                    listeners: tuple = (), device: str = "cpu") -> Trainer:
-    """Validate everything, create the model folder and return a :class:`Trainer` for it.
+                    listeners: tuple = (), device: str = "cpu", launcher: WorkerLauncher | None = None) -> Trainer:
+    """Validate everything, create the model folder and return a :class:`Trainer` for it, holding
+    the folder's lock (and the workers ``launcher`` started) until :meth:`Trainer.close`.
 
-    Refuses an existing name (a model is immutable). Nothing is written before validation passes.
-    ``listeners`` are subscribed after the folder's recorders (e.g. an object store's sync).
+    Refuses an existing name (a model is immutable). Nothing is written before validation passes
+    (``launcher.check`` included). ``listeners`` are subscribed after the folder's recorders (e.g. an
+    object store's sync); ``launcher`` (None: collection in-process) starts the rollout workers, once
+    the folder exists, before the trainer is built (:mod:`laplab.train.collaborators`).
     """
     validate_model_name(name)
     folder = model_folder(name)
@@ -66,6 +70,8 @@ def create_training(name: str, config: TrainConfig, init_weights: dict | None = 
                        f"`laplab train --resume {name}` if its training was interrupted.")
     track = job_track(config)
     reward_fn = load_and_validate_reward(config, track)
+    if launcher is not None:
+        launcher.check(config, reward_fn)
     # The folder is written beside its final place and renamed into it: a job killed at any moment
     # leaves a complete model folder or none (an unfinished one is a hidden .create-* folder).
     folder.root.parent.mkdir(parents=True, exist_ok=True)
@@ -84,10 +90,12 @@ def create_training(name: str, config: TrainConfig, init_weights: dict | None = 
         shutil.rmtree(staging.root, ignore_errors=True)
         raise
     lock.root = folder.root
-    return _start(folder, config, reward_fn, track, lock, init_weights, listeners, device)
+    return _start(folder, config, reward_fn, track, lock, init_weights=init_weights, listeners=listeners,
+                  device=device, launcher=launcher, discard=lambda: shutil.rmtree(folder.root, ignore_errors=True))
 
 
-def create_training_in_place(name: str, config: TrainConfig, init_weights: dict | None = None) -> Trainer:
+def create_training_in_place(name: str, config: TrainConfig, init_weights: dict | None = None,
+                             launcher: WorkerLauncher | None = None) -> Trainer:
     """:func:`create_training` for a model folder made empty beforehand (the console's confined jobs
     see only that folder, so they cannot write beside it and rename). Refuses a folder with files."""
     validate_model_name(name)
@@ -96,6 +104,8 @@ def create_training_in_place(name: str, config: TrainConfig, init_weights: dict 
         raise JobError(f"a model named {name!r} already exists at {folder.root}; models are immutable.")
     track = job_track(config)
     reward_fn = load_and_validate_reward(config, track)
+    if launcher is not None:
+        launcher.check(config, reward_fn)
     folder.create()
     lock = take_lock(folder)
     try:
@@ -103,30 +113,50 @@ def create_training_in_place(name: str, config: TrainConfig, init_weights: dict 
     except BaseException:
         lock.release()
         raise
-    return _start(folder, config, reward_fn, track, lock, init_weights)
+    return _start(folder, config, reward_fn, track, lock, init_weights=init_weights, launcher=launcher,
+                  discard=lambda: _empty(folder))
 
 
-def _start(folder: ModelFolder, config: TrainConfig, reward_fn, track: Track, lock: ModelLock,
-           init_weights: dict | None, listeners: tuple = (), device: str = "cpu") -> Trainer:
+def _empty(folder: ModelFolder) -> None:
+    """Remove what a job wrote in ``folder``, all but its lock file (the folder is left as it was given)."""
+    for path in folder.root.iterdir():
+        if path.name == LOCK_FILE_NAME:
+            continue
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+
+
+def _start(folder: ModelFolder, config: TrainConfig, reward_fn: RewardFunction, track: Track, lock: ModelLock, *,
+           init_weights: dict | None = None, resume_from: dict | None = None, listeners: tuple = (),
+           device: str = "cpu", launcher: WorkerLauncher | None = None, discard=None) -> Trainer:
+    """The trainer of a job whose folder is written and locked: its workers started by ``launcher``,
+    the folder's recorders (then ``listeners``) subscribed, checkpoint 0 written for a new job. On any
+    failure the workers are stopped, ``discard()`` (a new job's: remove what it wrote, so that a model
+    folder is whole, with checkpoint 0, or absent) runs and then the lock is released."""
+    iteration = int(resume_from["iteration"]) if resume_from is not None else 0
+    episodes = int(resume_from["episodes"]) if resume_from is not None else 0
+    collector = None
     try:
-        trainer = _attach(Trainer(config, reward_fn, track, device=device), folder, listeners)
+        collector, evaluator = launcher.start(config, reward_fn, folder, iteration) if launcher else (None, None)
+        recorders = (ModelFolderRecorder(folder, iteration, episodes, config.workers),
+                     RobomakerLogRecorder(folder, config))
+        trainer = Trainer(config, reward_fn, track, resume_from=resume_from, device=device, folder=folder, lock=lock,
+                          listeners=(*recorders, *listeners), collector=collector, evaluator=evaluator)
         if init_weights is not None:
             load_weights_only(trainer.learner, init_weights)
-        trainer.save_initial_checkpoint()
+        if resume_from is None:  # a new job (or one killed before its first checkpoint)
+            trainer.save_initial_checkpoint()
     except BaseException:
-        lock.release()
+        try:
+            if collector is not None:
+                collector.close()
+        finally:
+            if discard is not None:
+                discard()
+            lock.release()
         raise
-    trainer.lock = lock  # held for the job's lifetime (released by the OS when the process ends)
-    return trainer
-
-
-def _attach(trainer: Trainer, folder: ModelFolder, listeners: tuple = ()) -> Trainer:
-    """Subscribe the model folder's recorder (it writes what the trainer reports), then ``listeners``."""
-    trainer.folder = folder
-    trainer.subscribe(ModelFolderRecorder(folder, trainer.iteration, trainer.episodes, trainer.config.workers))
-    trainer.subscribe(RobomakerLogRecorder(folder, trainer.config))
-    for listener in listeners:
-        trainer.subscribe(listener)
     return trainer
 
 
@@ -140,13 +170,14 @@ def take_lock(folder, what: str = "trained") -> ModelLock:
 
 def resume_training(name: str, max_time_s: float | None = None, max_episodes: int | None = None,
                     trust_reward: bool = False, workers: int | None = None, device: str = "cpu",
-                    listeners: tuple = ()) -> Trainer:
-    """A Trainer that continues ``name`` from its last checkpoint (iteration count continues).
+                    listeners: tuple = (), launcher: WorkerLauncher | None = None) -> Trainer:
+    """A Trainer that continues ``name`` from its last checkpoint (iteration count continues),
+    holding the folder's lock (and the workers ``launcher`` started) until :meth:`Trainer.close`.
 
     ``max_time_s`` (a new budget for this session) and ``max_episodes`` (a new total) override the
     stored stop conditions; ``workers`` (rollout workers, any count) overrides the stored one and is
-    recorded in laplab.json. An imported model's reward function runs only once trusted
-    (``trust_reward``, recorded: see :mod:`laplab.train.archive`)."""
+    recorded in laplab.json once ``launcher`` accepts it. An imported model's reward function runs
+    only once trusted (``trust_reward``, recorded: see :mod:`laplab.train.archive`)."""
     folder = model_folder(name)
     if not folder.exists():
         raise JobError(f"no model named {name!r} to resume (looked in {folder.root}).")
@@ -159,11 +190,13 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
             config = replace(config, max_time_s=max_time_s)
         if max_episodes is not None:
             config = replace(config, max_episodes=max_episodes)
-        if workers is not None and workers != config.workers:
+        stored_workers = config.workers
+        if workers is not None:
             config = replace(config, workers=workers)
-            folder.write_laplab_config(config.to_dict())
         track = job_track(config)
         reward_fn = load_and_validate_reward(config, track, folder.reward_function)
+        if launcher is not None:
+            launcher.check(config, reward_fn)
         checkpoints = CheckpointStore(folder)
         if checkpoints.names():
             _, state = read_resume_state(folder)
@@ -173,16 +206,15 @@ def resume_training(name: str, max_time_s: float | None = None, max_episodes: in
                            f"deleted?). Restore the checkpoint files, or `laplab train --name NEW` to start over.")
         else:  # killed before its first checkpoint was written: start again from scratch
             state = None
+        if config.workers != stored_workers:
+            folder.write_laplab_config(config.to_dict())
         if folder.error_file.exists():
             folder.error_file.unlink()
-        trainer = _attach(Trainer(config, reward_fn, track, resume_from=state, device=device), folder, listeners)
-        if state is None:
-            trainer.save_initial_checkpoint()
     except BaseException:
         lock.release()
         raise
-    trainer.lock = lock
-    return trainer
+    return _start(folder, config, reward_fn, track, lock, resume_from=state, listeners=listeners, device=device,
+                  launcher=launcher)
 
 
 def clone_config(source: str, overrides: dict, trust_reward: bool = False) -> tuple[TrainConfig, dict]:

@@ -27,10 +27,12 @@ class ProgressPrinter:
     episodes that lapped, evaluation laps completed, best lap so far, env steps/s, time left; and,
     while an iteration runs, a line on its phase (episodes collected / num_episodes_between_training,
     then gradient steps) when nothing was printed for ``PHASE_LINE_INTERVAL_S`` (the first at once).
-    It subscribes itself to ``trainer`` for those (:class:`laplab.train.events.PhaseProgress`)."""
+    It subscribes itself to ``trainer`` for those (:class:`laplab.train.events.PhaseProgress`).
+    ``location``: where the summary says the model is (an object store's URL; None: the model folder)."""
 
-    def __init__(self, console: Console, trainer: Trainer, quiet: bool = False):
+    def __init__(self, console: Console, trainer: Trainer, quiet: bool = False, location: str | None = None):
         self.console, self.trainer, self.quiet = console, trainer, quiet
+        self.location = location
         self._printed_header = False
         self._last_line = float("-inf")
         trainer.subscribe(self)
@@ -76,7 +78,8 @@ class ProgressPrinter:
         best = f"{result.best_lap_time:.3f} s" if result.best_lap_time else "none yet"
         self.console.print(f"{self.trainer.folder.name}: {reasons.get(result.stop_reason, result.stop_reason)} after "
                            f"{result.iterations} iterations, {result.episodes} episodes, {result.env_steps} steps "
-                           f"in {_clock(result.elapsed_s)}; best lap {best}. Model: {getattr(self.trainer, 'location', None) or self.trainer.folder.root}")
+                           f"in {_clock(result.elapsed_s)}; best lap {best}. "
+                           f"Model: {self.location or self.trainer.folder.root}")
         if result.error:
             self.console.print(f"[red]reward function error[/red] (also in {self.trainer.folder.error_file}):")
             self.console.print(result.error, markup=False)

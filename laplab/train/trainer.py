@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 import torch
@@ -31,6 +31,10 @@ from laplab.train.resume_codec import on_cpu, pack_state
 from laplab.sim.state import episodes_done_and_steps
 from laplab.train.events import CheckpointReady, IterationEpisodes, IterationReport, PhaseProgress, PosesFrame
 from laplab.vehicle.params import vehicle_preset
+
+if TYPE_CHECKING:
+    from laplab.store.layout import ModelFolder
+    from laplab.train.collaborators import Collector, Evaluator, JobLock
 
 __all__ = ["IterationReport", "TrainResult", "Trainer", "build_learner", "checkpoint_writer", "load_checkpoint",
            "load_weights_only", "merge_resume_state", "resume_writer"]
@@ -103,24 +107,35 @@ def load_checkpoint(path) -> dict:
 
 
 class Trainer:
-    """A training job: ``config`` on the loaded ``track`` with ``reward_fn``; ``resume_from`` is a
-    checkpoint (:func:`load_checkpoint`) to continue from. Made by :mod:`laplab.train.jobs`, which
-    subscribes the model folder's recorder; ``folder`` names that folder for displays (None: no folder).
-    ``device``: the learner's torch device (``cuda`` for a GPU; collection stays on the CPU).
+    """A training job: ``config`` on the loaded ``track`` with ``reward_fn`` (a
+    :class:`~laplab.reward.loader.RewardFunction`); ``resume_from`` is a checkpoint
+    (:func:`load_checkpoint`) to continue from; ``device``: the learner's torch device (``cuda`` for a
+    GPU; collection stays on the CPU). Made by :mod:`laplab.train.jobs`, which gives it, keyword-only:
 
-    Collection and evaluation are pluggable: ``collector`` (None: in-process) is an object whose
-    ``collect(trainer, should_abort) -> EpisodeBatch`` drives the iteration's episodes elsewhere (Ray
-    rollout workers: :mod:`laplab.cluster`); ``evaluator`` (None: the job's track) has
-    ``evaluate(policy) -> EpisodeBatch``.
+    - ``folder``: the :class:`~laplab.store.layout.ModelFolder` the job writes, for displays (None: no
+      folder); the trainer itself writes no file,
+    - ``lock``: that folder's job lock (a :class:`~laplab.train.collaborators.JobLock`), held until
+      :meth:`close`,
+    - ``listeners``: subscribed first, in order (the folder's recorders; more join with :meth:`subscribe`),
+    - ``collector`` (None: in-process) and ``evaluator`` (None: the job's track): its collection and
+      evaluation steps run elsewhere (:class:`~laplab.train.collaborators.Collector`,
+      :class:`~laplab.train.collaborators.Evaluator`; Ray rollout workers: :mod:`laplab.cluster`).
+
+    The trainer owns its lock and collector: :meth:`close` (or leaving ``with trainer:``) stops the
+    collector and releases the lock when the job is over.
     """
 
     def __init__(self, config: TrainConfig, reward_fn, track: Track, resume_from: dict | None = None,
-                 device: str = "cpu"):
+                 device: str = "cpu", *, folder: ModelFolder | None = None, lock: JobLock | None = None,
+                 listeners: Sequence[object] = (), collector: Collector | None = None,
+                 evaluator: Evaluator | None = None):
         self.config, self.reward_fn, self.track = config, reward_fn, track
         self.spec, self.hp = config.spec, config.hyper()
         self.metadata = self.spec.metadata
-        self.folder = None
-        self._listeners: list = []
+        self.folder, self.lock = folder, lock
+        self.collector, self.evaluator = collector, evaluator
+        self._listeners: list = list(listeners)
+        self._closed = False
         vehicle = vehicle_preset(config.car)
         self.sim = Simulator(track, self.hp.num_episodes_between_training, vehicle, config.episode_params(),
                              race=config.race_type, seed=config.seed)
@@ -136,8 +151,6 @@ class Trainer:
         self.stepper = EpisodeStepper(self.sim, self.spec.action_space, reward_fn)
         self.eval_stepper = EpisodeStepper(self.eval_sim, self.spec.action_space, reward_fn)
         self.learner = build_learner(config, config.seed, device=device)
-        self.collector = None
-        self.evaluator = None
         self.iteration, self.env_steps, self.episodes, self.best_lap = 0, 0, 0, None
         self._last_progress = float("-inf")
         if resume_from is not None:
@@ -148,6 +161,27 @@ class Trainer:
             self.best_lap = resume_from.get("best_lap_time")
         # Continue the round-robin schedule where the job stopped.
         self.sim.restart_schedule(self.episodes)
+
+    # -- lifetime ------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """End the job: stop the collector's workers and release the folder's lock (once; later calls
+        do nothing). The trainer's state stays readable."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if self.collector is not None:
+                self.collector.close()
+        finally:
+            if self.lock is not None:
+                self.lock.release()  # the folder is free for the next job
+
+    def __enter__(self) -> "Trainer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     # -- listeners -----------------------------------------------------------------------------
 

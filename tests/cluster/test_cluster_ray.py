@@ -18,7 +18,7 @@ import pytest
 ray = pytest.importorskip("ray")
 
 from laplab.cluster.collector import connect_ray  # noqa: E402
-from laplab.cluster.launch import attach_workers  # noqa: E402
+from laplab.cluster.launch import RayWorkers  # noqa: E402
 from laplab.cluster.status import read_workers  # noqa: E402
 from laplab.env.metadata import ModelMetadata  # noqa: E402
 from laplab.store.layout import model_folder  # noqa: E402
@@ -60,7 +60,7 @@ def reward_file(tmp_path, body: str) -> str:
 
 def test_two_track_job_trains_on_policy_and_writes_each_workers_simtrace(local_ray):
     config = small_config(tracks=("classic_2018", "classic_2018@reversed"), workers=2, max_episodes=8)
-    trainer = create_training("two-tracks", config)
+    trainer = create_training("two-tracks", config, launcher=RayWorkers())  # both workers start with the folder
     versions_seen = []
     learn = trainer.learner.learn
 
@@ -75,7 +75,8 @@ def test_two_track_job_trains_on_policy_and_writes_each_workers_simtrace(local_r
         def on_poses(self, frame):
             frames.append(frame)
     trainer.subscribe(LiveView())
-    with attach_workers(trainer, 2):
+    assert len(trainer.collector.actors) == 2 and trainer.evaluator is not None  # every track is evaluated
+    with trainer:
         result = trainer.run(callbacks=(reports.append,))
     assert result.error is None and result.iterations == 2 and result.episodes == 8
     assert versions_seen == [(0, {0}), (1, {1})]
@@ -110,8 +111,9 @@ def test_dead_workers_are_restarted_and_the_job_resumes_with_one_worker(local_ra
             else:
                 os._exit(3)  # the reward function takes its worker's process down, once
         """)
-    trainer = create_training("faults", small_config(reward_path=path, workers=2, max_episodes=8))
     notices, killed, polls = [], [], []
+    trainer = create_training("faults", small_config(reward_path=path, workers=2, max_episodes=8),
+                              launcher=RayWorkers(notify=notices.append))
 
     def kill_during_second_collection():  # polled before each iteration, then while collecting
         if trainer.iteration == 1:
@@ -120,9 +122,9 @@ def test_dead_workers_are_restarted_and_the_job_resumes_with_one_worker(local_ra
                 ray.kill(trainer.collector.actors[0], no_restart=True)
                 killed.append(True)
         return False
-    with attach_workers(trainer, 2, notify=notices.append) as collector:
+    with trainer:
         result = trainer.run(should_stop=kill_during_second_collection)
-        restarts = list(collector.restarts)
+        restarts = list(trainer.collector.restarts)
     assert result.error is None and result.iterations == 2 and result.episodes == 8, result
     assert marker.exists() and killed
     assert len(notices) == 2 and all("restarted it, collecting its 2 episodes again" in n for n in notices)
@@ -130,11 +132,12 @@ def test_dead_workers_are_restarted_and_the_job_resumes_with_one_worker(local_ra
     rows = read_workers(model_folder("faults").root, last_iteration=2)  # what the console's model page shows
     assert [r["restarts"] for r in rows] == restarts and [r["state"] for r in rows] == ["stopped", "stopped"]
     assert all(r["cause"] for r in rows if r["restarts"]) and [r["episodes"] for r in rows] == [4, 4]
-    trainer.lock.release()
-    # a dead learner leaves its last checkpoint: resume it in-process with one worker
-    again = resume_training("faults", max_episodes=12, workers=1)
-    assert again.iteration == 2 and again.collector is None
-    assert again.run().iterations == 3
+    log = (model_folder("faults").root / "logs" / "workers.log").read_text().splitlines()
+    assert len(log) == 2 and all(line.endswith(notice) for line, notice in zip(log, notices))
+    # a dead learner leaves its last checkpoint: resume it with one worker, which collects in-process
+    with resume_training("faults", max_episodes=12, workers=1, launcher=RayWorkers()) as again:
+        assert again.iteration == 2 and again.collector is None and again.evaluator is None
+        assert again.run().iterations == 3
     folder = model_folder("faults")
     assert json.loads(folder.laplab_config.read_text())["workers"] == 1
     assert folder.simtrace_workers() == [0, 1] and folder.list_training_iterations() == [0, 1, 2]
@@ -147,9 +150,9 @@ def test_a_raising_reward_function_is_the_usual_error_not_a_restart(local_ray, t
         if IN_WORKER() and params["steps"] > 3:
             raise KeyError("no such param")
         """)
-    trainer = create_training("raises", small_config(reward_path=path, workers=2, max_episodes=8))
     notices = []
-    with attach_workers(trainer, 2, notify=notices.append):
+    with create_training("raises", small_config(reward_path=path, workers=2, max_episodes=8),
+                         launcher=RayWorkers(notify=notices.append)) as trainer:
         result = trainer.run()
     assert result.stop_reason == "reward_error" and notices == []
     assert "reward_function.py" in result.error and "KeyError" in result.error and "line 8" in result.error

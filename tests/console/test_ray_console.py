@@ -108,7 +108,7 @@ def laplab_home(tmp_path, monkeypatch):
 def test_ray_collection_reports_progress_and_the_workers_file_follows_the_workers(joined, laplab_home, tmp_path,
                                                                                     monkeypatch):
     from laplab.cluster import collector as collector_module
-    from laplab.cluster.launch import attach_workers
+    from laplab.cluster.launch import RayWorkers
     from laplab.env.metadata import ModelMetadata
     from laplab.train import trainer as trainer_module
     from laplab.train.config import TrainConfig
@@ -130,7 +130,7 @@ def test_ray_collection_reports_progress_and_the_workers_file_follows_the_worker
     hyper = {**TrainConfig().hyper().to_dict(), **SMALL_HP}
     config = replace(TrainConfig(), hyperparameters=hyper, model_metadata=ModelMetadata().to_dict(), max_time_s=300,
                      workers=2, max_episodes=4, reward_path=str(reward))
-    trainer = create_training("on-ray", config)
+    trainer = create_training("on-ray", config, launcher=RayWorkers())
     events, snapshots = [], []
 
     class Listener:
@@ -138,10 +138,10 @@ def test_ray_collection_reports_progress_and_the_workers_file_follows_the_worker
             events.append(progress)
     trainer.subscribe(Listener())
     path = workers_file(trainer.folder.root)
-    with attach_workers(trainer, 2) as collector:
+    with trainer:
         started = json.loads(path.read_text())["workers"]
         result = trainer.run(callbacks=(lambda report: snapshots.append(read_workers(trainer.folder.root)),))
-        pids = collector.pids()
+        pids = trainer.collector.pids()
     assert result.error is None and result.iterations == 1, result
     first = [e for e in events if e.iteration == 1]
     phases = [e.phase for e in first]

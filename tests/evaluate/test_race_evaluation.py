@@ -114,7 +114,7 @@ def test_an_evaluation_drives_the_race_it_is_given(tmp_path, monkeypatch):
     from laplab.train.config import TrainConfig
     from laplab.train.jobs import create_training
     monkeypatch.setenv("LAPLAB_HOME", str(tmp_path / "home"))
-    create_training("plain", TrainConfig(track="oval")).lock.release()
+    create_training("plain", TrainConfig(track="oval")).close()
     race = {"kind": "object_avoidance", "objects": 2, "collision_penalty": 3.0}
     result, _ = evaluate_model("plain", EvaluationSettings(trials=1, max_trial_time=3.0, race_type=race))
     assert result.race_type["kind"] == "object_avoidance" and result.race_type["objects"] == 2

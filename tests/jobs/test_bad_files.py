@@ -21,7 +21,7 @@ REPO = Path(__file__).resolve().parents[2]
 def trained(laplab_home, tiny_config):
     trainer = create_training("m", tiny_config(max_episodes=2))
     trainer.run()
-    trainer.lock.release()
+    trainer.close()
     return model_folder("m")
 
 

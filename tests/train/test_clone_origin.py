@@ -12,11 +12,11 @@ from laplab.train.jobs import clone_config, create_training
 def test_clone_records_its_source(tmp_path, monkeypatch):
     monkeypatch.setenv("LAPLAB_HOME", str(tmp_path / "home"))
     source = create_training("source", TrainConfig(track="oval"))
-    source.lock.release()
+    source.close()
     config, weights = clone_config("source", {})
     assert config.cloned_from == "source (checkpoint 0_Step-0.ckpt)" and "model" in weights
     clone = create_training("clone", config, init_weights=weights)
-    clone.lock.release()
+    clone.close()
     saved = model_folder("clone").read_laplab_config()
     assert saved["cloned_from"] == "source (checkpoint 0_Step-0.ckpt)"
     assert TrainConfig.from_dict(saved).cloned_from == config.cloned_from

@@ -28,7 +28,7 @@ def test_weights_only_and_full_state_exports(tmp_path, monkeypatch):
         base.hyper(), num_episodes_between_training=2, batch_size=32, num_epochs=3))
     trainer = create_training("src", config)
     trainer.run()
-    trainer.lock.release()
+    trainer.close()
     last = CheckpointStore(model_folder("src")).last().name
 
     plain = export_model_archive("src", "last", tmp_path / "plain.tar.gz")
@@ -43,12 +43,12 @@ def test_weights_only_and_full_state_exports(tmp_path, monkeypatch):
     import_model_archive(full, "moved")
     moved = resume_training("moved", max_episodes=6, trust_reward=True)
     assert moved.learner.optimizer.state_dict()["state"]  # Adam's moments travelled
-    moved.lock.release()
+    moved.close()
     import_model_archive(plain, "copied")
     copied = resume_training("copied", max_episodes=6, trust_reward=True)
     assert not copied.learner.optimizer.state_dict()["state"]  # weights only: a fresh optimizer
     for a, b in zip(copied.learner.model.parameters(), moved.learner.model.parameters()):
         assert torch.equal(a, b)
     copied.run()
-    copied.lock.release()
+    copied.close()
     assert copied.iteration == 3

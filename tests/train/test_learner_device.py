@@ -80,7 +80,7 @@ def test_a_camera_model_trained_on_the_device_drives_the_same_on_the_cpu(device,
     np.testing.assert_allclose(on_cpu.act(observations, deterministic=True).env_action, driven,
                                rtol=1e-3, atol=1e-4)
 
-    trainer.lock.release()  # the job is over, as `laplab train` ends it
+    trainer.close()  # the job is over, as `laplab train` ends it
     resumed = resume_training("on-device", max_episodes=8, device="cpu")
     assert resumed.iteration == 1
     after = resumed.run()

@@ -54,10 +54,9 @@ def test_a_trainer_without_a_folder_reports_everything_to_its_listeners(tmp_path
     config = replace(base, hyperparameters=replace(base.hyper(), num_episodes_between_training=2, batch_size=32,
                                                    num_epochs=3))
     track = load_track("oval")
-    trainer = Trainer(config, load_reward_function(config_reward()), track)
-    recorder, iterations = Recorder(), IterationsOnly()
-    trainer.subscribe(recorder)
-    trainer.subscribe(iterations)
+    recorder, iterations = Recorder(), IterationsOnly()  # given when it is built, heard in that order
+    trainer = Trainer(config, load_reward_function(config_reward()), track, listeners=(recorder, iterations))
+    assert trainer.folder is None and trainer.lock is None and trainer.collector is None
     trainer.save_initial_checkpoint()
     result = trainer.run()
     assert result.iterations == 2 and iterations.reports == [1, 2]

@@ -43,8 +43,8 @@ class Progress:
         self.events.append(progress)
 
 
-def _trainer(config: TrainConfig) -> Trainer:
-    return Trainer(config, load_reward_function(config.reward_path), load_track(config.track))
+def _trainer(config: TrainConfig, **collaborators) -> Trainer:
+    return Trainer(config, load_reward_function(config.reward_path), load_track(config.track), **collaborators)
 
 
 def test_progress_events_cover_collection_learning_and_evaluation(monkeypatch):
@@ -109,20 +109,20 @@ def test_a_small_max_time_is_kept_with_a_complete_model(laplab_home):
     elapsed = time.perf_counter() - started
     assert result.stop_reason == "max_time"
     assert elapsed <= 2.0 + 15  # the last gradient step or simulation step (the issue allows 15 s), not the iteration
-    trainer.lock.release()
+    trainer.close()
     store = CheckpointStore(trainer.folder)
     state = torch.load(store.resolve("last"), weights_only=True)
     assert "learner" in state and "optimizer" not in state["learner"]
     resumed = resume_training("limit", max_time_s=1.0)
     assert resumed.iteration == result.iterations
-    resumed.lock.release()
+    resumed.close()
 
 
 def test_only_the_last_checkpoint_carries_the_resume_state(laplab_home):
     config = replace(_config(), max_episodes=6)
     trainer = create_training("compact", config)
     trainer.run()
-    trainer.lock.release()
+    trainer.close()
     store = CheckpointStore(trainer.folder)
     names = store.names()
     assert len(names) == 4  # 0, 1, 2, 3
@@ -142,19 +142,17 @@ def test_only_the_last_checkpoint_carries_the_resume_state(laplab_home):
         for key, value in moments.items():
             assert torch.equal(optimizer["state"][index][key], value), (index, key)
     resumed.run()
-    resumed.lock.release()
+    resumed.close()
     assert resumed.iteration == 4
 
 
 def test_the_printer_shows_the_phase_within_seconds():
     from laplab.train.progress import ProgressPrinter
-    trainer = _trainer(_config())
-    out = io.StringIO()
-
     class Folder:
         name = "m"
         root = "."
-    trainer.folder = Folder()
+    trainer = _trainer(_config(), folder=Folder())
+    out = io.StringIO()
     printer = ProgressPrinter(Console(file=out, width=200), trainer)
     printer.on_progress(PhaseProgress(1, "collect", 0, 20, 0, 0.1))
     printer.on_progress(PhaseProgress(1, "collect", 3, 20, 400, 2.0))  # within 5 s of the last line: quiet
@@ -183,7 +181,7 @@ def test_a_stop_before_the_first_minibatch_still_writes_the_iteration_log_and_re
     trainer.subscribe(StopAtLearning())
     reports = []
     result = trainer.run(callbacks=(reports.append,), should_stop=lambda: bool(stop_now))
-    trainer.lock.release()
+    trainer.close()
     assert result.error is None and result.iterations == 1 and reports[0].partial
     assert reports[0].losses["num_minibatches"] == 0
     row = read_json(trainer.folder.metrics_dir / "laplab-iterations.json")["iterations"][0]
