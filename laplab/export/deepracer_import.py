@@ -283,7 +283,11 @@ def load_weights(layout: DeepRacerLayout, config, source: str, notes: list[str])
     try:
         where, found, constants = _found_variables(layout)
         if config.metadata().training_algorithm == "sac":
-            config = replace(config, policy_head_layers=sac_head_layers(found))
+            try:
+                config = replace(config, policy_head_layers=sac_head_layers(found))
+            except UserError as exc:
+                raise DeepRacerImportError(f"{source}: {where}: SAC policy head: {exc}. Nothing was imported.",
+                                           field=where) from None
         learner = build_learner(config, config.seed, precision="float32")
         network, space, policy, value = _templates(learner, config)
         expected = expected_variables(policy, None if constants is not None else value)
