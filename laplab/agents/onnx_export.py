@@ -90,7 +90,7 @@ class PolicyGraph(nn.Module):
             observation[spec.name] = tensor
         obs: Any = observation[self.inputs[0].name] if self.single_box else observation
         if isinstance(self.network, SquashedGaussianActor):
-            return torch.tanh(self.network.mean(self.network.trunk(obs)))
+            return self.network.greedy(self.network.trunk(obs))
         out = self.network.policy_head(self.network.policy_trunk(obs))
         return torch.softmax(out, dim=-1) if self.discrete else out.clamp(-1.0, 1.0)
 

@@ -51,7 +51,8 @@ class SACLearner:
     a loaded checkpoint's own layout wins over it. ``action_scale`` (A,): half of each action's range
     in the model's units (steering degrees, m/s); with it the entropy term uses DeepRacer's
     log-probability (:func:`laplab.agents.sac_networks.deepracer_squashed_log_prob`), which a training
-    job always gives.
+    job always gives. ``policy_head_layers``: the policy head's relu layers before its mean and log-std
+    (the model spec's: () laplab's, (256,) deepracer-simapp's, see :class:`SquashedGaussianActor`).
     """
 
     algorithm = "sac"
@@ -62,7 +63,7 @@ class SACLearner:
                  network_name: str = DEFAULT_NETWORK, device: str = "cpu",
                  buffer_capacity: int = 100_000, seed: int | None = None,
                  num_threads: int | None = None, precision: str = "float32", shared_trunk: bool | None = None,
-                 action_scale: Any = None):
+                 action_scale: Any = None, policy_head_layers: tuple[int, ...] = ()):
         limit_torch_threads(num_threads)
         flush_denormals()  # before any torch work: the threads torch starts inherit it
         if seed is not None:
@@ -74,7 +75,8 @@ class SACLearner:
         self.network_name = network_name
         self.device = torch.device(device)
         dim = self.action_spec.size
-        self.actor = SquashedGaussianActor(observation_space, dim, network_name, action_scale).to(self.device)
+        self.actor = SquashedGaussianActor(observation_space, dim, network_name, action_scale,
+                                           policy_head_layers).to(self.device)
         self.critic = TwinQ(observation_space, dim, network_name).to(self.device)
         self.precision = set_compute_precision(self.actor, precision)
         set_compute_precision(self.critic, self.precision)
@@ -246,6 +248,11 @@ class SACLearner:
         q1, q2 = self.critic.frozen_heads(features, new_actions)
         return sac_actor_loss(q1, q2, log_probs, self.hyperparameters.sac_alpha)
 
+    def set_shared_trunk(self, shared: bool) -> None:
+        """Put the actor on the critic's trunk or on its own (an imported DeepRacer policy keeps its own
+        trunk, as rl_coach trains it); the checkpoints record the choice."""
+        self._share_trunk(shared)
+
     def _share_trunk(self, shared: bool) -> None:
         """Put the actor on the critic's trunk (``shared``) or on its own, and give the actor a fresh
         optimizer over what it trains: its heads when shared, all of it otherwise."""
@@ -254,13 +261,15 @@ class SACLearner:
         elif self.shared_trunk:  # leave the critic's trunk: the actor's own starts as a copy of it
             self.actor.trunk = copy.deepcopy(self.critic.trunk)
         self.shared_trunk = bool(shared)
-        trained = ([*self.actor.mean.parameters(), *self.actor.log_std.parameters()] if shared
+        trained = ([*self.actor.head.parameters(), *self.actor.mean.parameters(), *self.actor.log_std.parameters()]
+                   if shared
                    else list(self.actor.parameters()))
         self.actor_optimizer = torch.optim.Adam(trained, lr=self.hyperparameters.lr, fused=True)
 
     def _config(self) -> dict[str, Any]:
         return {"algorithm": "sac", "gradient_steps": self.gradient_steps, "shared_trunk": self.shared_trunk,
                 "hyperparameters": self.hyperparameters.to_dict(), "network_name": self.network_name,
+                "policy_head_layers": list(self.actor.head_layers),
                 "action_spec": asdict(self.action_spec)}
 
     def weights_state(self) -> dict[str, Any]:
@@ -295,6 +304,10 @@ class SACLearner:
                 f"Checkpoint ({state.get('algorithm')}, network {saved[0]!r}, actions {saved[1]}) does "
                 f"not match this SAC learner ({self.network_name!r}, {asdict(self.action_spec)})."
             )
+        saved_head = tuple(state.get("policy_head_layers", ()))
+        if saved_head != self.actor.head_layers:
+            raise ValueError(f"Checkpoint's SAC policy head has dense layers {list(saved_head)}, this learner's "
+                             f"{list(self.actor.head_layers)}: the model spec's policy_head_layers must match.")
         self.load_weights(state)  # an older state's "target_critic" is not needed: see state_dict()
         if "actor_optimizer" in state and "critic_optimizer" in state and not _separate_layout(state):
             self.actor_optimizer.load_state_dict(state["actor_optimizer"])

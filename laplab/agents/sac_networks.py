@@ -54,15 +54,20 @@ def deepracer_squashed_log_prob(pre_tanh: torch.Tensor, normal: torch.distributi
 class SquashedGaussianActor(nn.Module):
     """SAC's policy: a state-dependent Gaussian squashed by tanh into (-1, 1)^A.
 
+    ``head_layers``: relu dense layers between the trunk and the mean / log-std layers: () laplab's
+    (both read the trunk's features), (256,) deepracer-simapp's ``SACPolicyHead`` (a dense 256 first).
     ``action_scale`` (A,) switches the log-probability to DeepRacer's (:func:`deepracer_squashed_log_prob`);
     without it the exact change of variables into (-1, 1)^A. Either way the actions are the same."""
 
     def __init__(self, observation_space: gym.spaces.Space, action_dim: int, network_name: str = DEFAULT_NETWORK,
-                 action_scale: Any = None):
+                 action_scale: Any = None, head_layers: tuple[int, ...] = ()):
         super().__init__()
         self.trunk = build_embedder(observation_space, network_name)
-        self.mean = nn.Linear(self.trunk.output_dim, action_dim)
-        self.log_std = nn.Linear(self.trunk.output_dim, action_dim)
+        self.head_layers = tuple(int(size) for size in head_layers)
+        self.head = dense_stack(self.trunk.output_dim, self.head_layers, nn.ReLU)  # empty: no parameters
+        width = self.head_layers[-1] if self.head_layers else self.trunk.output_dim
+        self.mean = nn.Linear(width, action_dim)
+        self.log_std = nn.Linear(width, action_dim)
         scale = None if action_scale is None else torch.as_tensor(action_scale, dtype=torch.float32).reshape(action_dim)
         self.register_buffer("action_scale", scale, persistent=False)  # not in checkpoints: it comes from the metadata
 
@@ -72,12 +77,18 @@ class SquashedGaussianActor(nn.Module):
 
     def from_features(self, features: torch.Tensor, deterministic: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
         """The policy's heads on trunk ``features`` (B, F) -> actions (B, A), log_prob (B,)."""
+        features = self.head(features)
         mean = self.mean(features)
         normal = torch.distributions.Normal(mean, self.log_std(features).clamp(-20.0, 2.0).exp())
         pre_tanh = mean if deterministic else normal.rsample()
         if self.action_scale is None:
             return torch.tanh(pre_tanh), squashed_gaussian_log_prob(pre_tanh, normal)
         return torch.tanh(pre_tanh), deepracer_squashed_log_prob(pre_tanh, normal, self.action_scale)
+
+
+    def greedy(self, features: torch.Tensor) -> torch.Tensor:
+        """The greedy action tanh(mean) (B, A) on trunk ``features`` (B, F)."""
+        return torch.tanh(self.mean(self.head(features)))
 
 
 class TwinQ(nn.Module):

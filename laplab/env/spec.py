@@ -34,6 +34,8 @@ class ModelSpec:
     - ``objects_summary``: the race type puts objects on the track, so the ``STATE`` vector carries a
       summary of the nearest ones (:func:`laplab.sim.collision.summary_size` more values); time trials
       keep the STATE vector they always had.
+    - ``policy_head_layers``: SAC only: relu dense layers of the policy head before its mean and
+      log-std layers: () laplab's, (256,) deepracer-simapp's ``SACPolicyHead`` (imported DeepRacer models).
     """
 
     sensors: tuple[str, ...] = (STATE_SENSOR,)
@@ -44,6 +46,7 @@ class ModelSpec:
     lidar_config: dict | None = None
     version: str = "5"
     objects_summary: bool = False
+    policy_head_layers: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         if isinstance(self.stack_size, bool) or not isinstance(self.stack_size, (int, np.integer)) \
@@ -51,6 +54,7 @@ class ModelSpec:
             raise MetadataError(f"stack_size must be an integer from 1 to {MAX_STACK_SIZE}, got {self.stack_size!r}")
         object.__setattr__(self, "stack_size", int(self.stack_size))
         object.__setattr__(self, "sensors", validate_sensors(list(self.sensors), "ModelSpec.sensors"))
+        object.__setattr__(self, "policy_head_layers", validate_head_layers(self.policy_head_layers, self.algorithm))
 
     @property
     def metadata(self) -> ModelMetadata:
@@ -75,14 +79,31 @@ class ModelSpec:
         return self.action_space.gym_space()
 
 
-def model_spec(metadata: ModelMetadata | None = None, stack_size: int = 1, objects_summary: bool = False) -> ModelSpec:
-    """The one constructor of a :class:`ModelSpec` from a model's metadata, its ``stack_size`` and
-    whether its race type has objects (``objects_summary``)."""
+MAX_HEAD_LAYERS, MAX_HEAD_WIDTH = 4, 4096
+
+
+def validate_head_layers(layers, algorithm: str) -> tuple[int, ...]:
+    """``policy_head_layers`` as a tuple of widths; :class:`MetadataError` unless they are up to
+    ``MAX_HEAD_LAYERS`` integers in 1..``MAX_HEAD_WIDTH`` of a SAC model."""
+    if isinstance(layers, (str, bytes)) or not all(isinstance(size, (int, np.integer)) and not isinstance(size, bool)
+                                                   and 1 <= size <= MAX_HEAD_WIDTH for size in layers) \
+            or len(layers) > MAX_HEAD_LAYERS:
+        raise MetadataError(f"policy_head_layers must be up to {MAX_HEAD_LAYERS} layer widths within "
+                            f"1..{MAX_HEAD_WIDTH}, got {layers!r}")
+    if layers and algorithm != "sac":
+        raise MetadataError(f"policy_head_layers belong to SAC's policy head; a {algorithm} model has none")
+    return tuple(int(size) for size in layers)
+
+
+def model_spec(metadata: ModelMetadata | None = None, stack_size: int = 1, objects_summary: bool = False,
+               policy_head_layers: tuple[int, ...] = ()) -> ModelSpec:
+    """The one constructor of a :class:`ModelSpec` from a model's metadata, its ``stack_size``,
+    whether its race type has objects (``objects_summary``) and its SAC ``policy_head_layers``."""
     metadata = metadata if metadata is not None else ModelMetadata()
     return ModelSpec(sensors=metadata.sensors, stack_size=stack_size, network=metadata.neural_network,
                      action_space=metadata.action_space, algorithm=metadata.training_algorithm,
                      lidar_config=metadata.lidar_config, version=metadata.version,
-                     objects_summary=bool(objects_summary))
+                     objects_summary=bool(objects_summary), policy_head_layers=tuple(policy_head_layers))
 
 
 def sensor_space(sensor: str, stack_size: int = 1, lidar_config: dict | None = None,

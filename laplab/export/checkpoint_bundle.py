@@ -10,8 +10,10 @@ A checkpoint is a "tensor bundle":
   variable name whose value is a ``BundleEntryProto`` (dtype, shape, shard, offset, size, crc32c);
 - ``.data-<shard>-of-<shards>`` are the tensors' raw little-endian bytes at those offsets.
 
-Errors are :class:`BundleError` naming the file and what is wrong (a truncated ``.data`` file, an
-index that is not a table, a dtype laplab does not read).
+Each tensor read is checked against its entry's masked CRC-32C (:mod:`laplab.export.crc32c`), so a
+damaged ``.data`` file (a flipped byte, a copy cut short and padded) is refused, naming the tensor.
+Errors are :class:`BundleError` naming the file and what is wrong (a truncated or damaged ``.data``
+file, an index that is not a table, a dtype laplab does not read).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from laplab.errors import UserError
+from laplab.export.crc32c import crc32c, masked
 
 TABLE_MAGIC = 0xDB4775248B80FB57
 FOOTER_SIZE = 48
@@ -44,6 +47,7 @@ class BundleEntry:
     shard: int
     offset: int
     size: int
+    crc32c: int | None = None  # masked CRC-32C of the bytes (None: the index gives none)
 
 
 def _varint(data: bytes, position: int, where: str) -> tuple[int, int]:
@@ -112,7 +116,7 @@ def tensor_shape(message: bytes, where: str) -> list[int]:
 
 
 def _entry(name: str, value: bytes, where: str) -> BundleEntry:
-    dtype, shape, shard, offset, size, slices = 0, [], 0, 0, 0, False
+    dtype, shape, shard, offset, size, slices, checksum = 0, [], 0, 0, 0, False, None
     for number, _, field in _fields(value, where):
         if number == 1:
             dtype = field
@@ -124,6 +128,8 @@ def _entry(name: str, value: bytes, where: str) -> BundleEntry:
             offset = field
         elif number == 5:
             size = field
+        elif number == 6:
+            checksum = field
         elif number == 7:
             slices = True
     if slices:
@@ -131,7 +137,7 @@ def _entry(name: str, value: bytes, where: str) -> BundleEntry:
                           "whole tensors only.")
     if dtype not in DTYPES:
         raise BundleError(f"{where}: variable {name!r} has TensorFlow dtype {dtype}, which laplab does not read.")
-    return BundleEntry(name, DTYPES[dtype], tuple(shape), shard, offset, size)
+    return BundleEntry(name, DTYPES[dtype], tuple(shape), shard, offset, size, checksum)
 
 
 def read_index(index_path: str | Path) -> tuple[int, dict[str, BundleEntry]]:
@@ -187,6 +193,11 @@ def read_checkpoint(prefix: str | Path, names: set[str] | None = None) -> dict[s
                                       f"{entry.offset}-{entry.offset + entry.size}. Copy the checkpoint again.")
                 handle.seek(entry.offset)
                 raw = handle.read(entry.size)
+                if entry.crc32c is not None and masked(crc32c(raw)) != entry.crc32c:
+                    raise BundleError(f"{path}: variable {entry.name!r} (bytes {entry.offset}-"
+                                      f"{entry.offset + entry.size}) does not match its checksum in "
+                                      f"{Path(f'{prefix}.index').name}: the file is damaged (a changed byte, or a copy "
+                                      "cut short and padded). Copy the checkpoint again from where it was trained.")
                 arrays[entry.name] = np.frombuffer(raw, dtype=np.dtype(entry.dtype).newbyteorder("<")) \
                     .astype(entry.dtype).reshape(entry.shape)
     return arrays

@@ -43,8 +43,9 @@ def simapp_limitations(metadata: dict) -> tuple[str, ...]:
     notes = []
     if metadata.get("training_algorithm") == "sac":
         notes.append("SAC: DeepRacer's SAC networks differ from laplab's (a dense 256 layer in the policy "
-                     "head; one shared critic embedder and a V network), so the checkpoint holds the policy "
-                     "in laplab's layout and no critics; the simapp cannot evaluate or resume it from the checkpoint")
+                     "head, unless the model was imported from DeepRacer; critics without middleware and a V "
+                     "network), so the checkpoint holds the policy and no critics; the simapp cannot evaluate or "
+                     "resume it from the checkpoint")
     network = metadata.get("neural_network", "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW")
     if "STEREO_CAMERAS" in metadata.get("sensor", []) and network != "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW":
         notes.append(f"STEREO_CAMERAS with {network}: DeepRacer uses a five-layer stereo conv scheme there, "

@@ -257,36 +257,53 @@ def _describe(config) -> str:
             f"{meta.action_space.kind} action space of {len(meta.action_space.actions) or 2} outputs")
 
 
-def load_weights(layout: DeepRacerLayout, config, source: str):
-    """A learner of ``config`` holding the layout's weights; the checkpoint's (or graph's) variables
-    are checked against the metadata's network first."""
+def _found_variables(layout: DeepRacerLayout) -> tuple[str, dict[str, tuple[int, ...]], dict | None]:
+    """(the file read, {variable: shape} it holds, the graph's constants or None for a checkpoint)."""
     from laplab.export.frozen_graph_weights import graph_constants
+
+    if layout.checkpoint is not None:
+        _, entries = read_index(f"{layout.checkpoint}.index")
+        return (f"{layout.checkpoint.relative_to(layout.root)}.index",
+                {name: entry.shape for name, entry in entries.items()}, None)
+    constants = graph_constants(layout.graph)
+    return str(layout.graph.relative_to(layout.root)), {name: a.shape for name, a in constants.items()}, constants
+
+
+def load_weights(layout: DeepRacerLayout, config, source: str, notes: list[str]):
+    """(a learner holding the layout's weights, the config it was built from: ``config`` with the SAC
+    policy head the checkpoint holds); the checkpoint's (or graph's) variables are checked against the
+    metadata's network first. A DeepRacer SAC policy keeps its own trunk and its critics start fresh
+    (one line in ``notes``)."""
+    from dataclasses import replace
+
     from laplab.export.policy_layers import load_policy_layers
-    from laplab.export.rl_coach_weights import expected_variables, layers_from_variables, mismatches
+    from laplab.export.rl_coach_weights import expected_variables, layers_from_variables, mismatches, sac_head_layers
     from laplab.train.trainer import build_learner
 
-    learner = build_learner(config, config.seed, precision="float32")
-    network, space, policy, value = _templates(learner, config)
     try:
-        if layout.checkpoint is not None:
-            where = f"{layout.checkpoint.relative_to(layout.root)}.index"
-            _, entries = read_index(f"{layout.checkpoint}.index")
-            found = {name: entry.shape for name, entry in entries.items()}
-        else:
-            where = str(layout.graph.relative_to(layout.root))
-            constants = graph_constants(layout.graph)
-            found = {name: array.shape for name, array in constants.items()}
+        where, found, constants = _found_variables(layout)
+        if config.metadata().training_algorithm == "sac":
+            try:
+                config = replace(config, policy_head_layers=sac_head_layers(found))
+            except UserError as exc:
+                raise DeepRacerImportError(f"{source}: {where}: SAC policy head: {exc}. Nothing was imported.",
+                                           field=where) from None
+        learner = build_learner(config, config.seed, precision="float32")
+        network, space, policy, value = _templates(learner, config)
+        expected = expected_variables(policy, None if constants is not None else value)
+        if constants is not None:  # a frozen graph: the rescaler may be folded out, SAC's log-std pruned
             value = None
-        expected = expected_variables(policy, value)
-        if layout.checkpoint is None:  # the rescaler (1.0, not a weight laplab keeps) may be folded out of a graph
-            expected = {name: shape for name, shape in expected.items() if not name.endswith(RESCALER)}
-        problems = mismatches(found, expected, strict=layout.checkpoint is not None)
+            optional = (RESCALER, "policy_log_std/kernel", "policy_log_std/bias",
+                        f"dense_{len(policy.head_hidden)}/kernel", f"dense_{len(policy.head_hidden)}/bias")
+            expected = {name: shape for name, shape in expected.items()
+                        if not name.endswith(optional) or name in found}
+        problems = mismatches(found, expected, strict=constants is None)
         if problems:
             raise DeepRacerImportError(
                 f"{source}: {where} does not hold the network {layout.metadata_file} describes ({_describe(config)}): "
                 f"{'; '.join(problems[:3])}{' ...' if len(problems) > 3 else ''}. Is model_metadata.json the one this "
                 "model was trained with? Nothing was imported.", field=where)
-        variables = (read_checkpoint(layout.checkpoint, set(expected)) if layout.checkpoint is not None
+        variables = (read_checkpoint(layout.checkpoint, set(expected)) if constants is None
                      else {name: constants[name] for name in expected})
     except BundleError as exc:
         raise DeepRacerImportError(f"{source}: {exc} Nothing was imported.", field=exc.field) from None
@@ -295,9 +312,14 @@ def load_weights(layout: DeepRacerLayout, config, source: str):
         raise DeepRacerImportError(f"{source}: {where}: variable {broken!r} holds NaN or infinite weights; the "
                                    "checkpoint is damaged (or its training diverged). Nothing was imported.",
                                    field=where)
+    if policy.head_hidden:  # deepracer-simapp's SAC: rl_coach's separate networks
+        learner.set_shared_trunk(False)
+        network = learner.policy_network
+        notes.append("SAC: the policy is DeepRacer's, weight for weight; the critics (Q networks) start fresh, "
+                     "as rl_coach's q and v networks have no counterpart in laplab's twin critic")
     loaded_policy, loaded_value = layers_from_variables(policy, value, variables)
     load_policy_layers(network, space, loaded_policy, loaded_value)
-    return learner
+    return learner, config
 
 
 def import_deepracer_model(source: str | os.PathLike, name: str | None = None,
@@ -315,7 +337,7 @@ def import_deepracer_model(source: str | os.PathLike, name: str | None = None,
     with staged_source(source, max_bytes) as root:
         layout = read_layout(root, text)
         config, notes = _config(layout, text)
-        learner = load_weights(layout, config, text)
+        learner, config = load_weights(layout, config, text, notes)
         return _write_model(new_name, layout, config, learner, text, notes)
 
 

@@ -58,7 +58,8 @@ class PolicyLayers:
     Gaussian mean, unclipped; a value network: V) or ``tanh`` (SAC: tanh of the mean). ``algorithm``:
     clipped_ppo or sac. The exploration noise, which the greedy policy does not use but a checkpoint
     keeps: ``log_std`` (PPO continuous: the state-independent log-std, (A,)) or ``log_std_head``
-    (SAC: the layer giving the log-std from the features).
+    (SAC: the layer giving the log-std from the features). ``head_hidden``: SAC's relu layers between
+    the features and both head layers (deepracer-simapp's dense 256; empty for laplab's own SAC).
     """
 
     algorithm: str
@@ -68,6 +69,7 @@ class PolicyLayers:
     output: str
     log_std: np.ndarray | None = None
     log_std_head: Dense | None = None
+    head_hidden: tuple[Dense, ...] = ()
 
     @property
     def action_size(self) -> int:
@@ -121,7 +123,7 @@ def policy_layers(network: Any, observation_space: Any, sensors: Sequence[str]) 
     from laplab.agents.networks import ActorCritic
     from laplab.agents.sac_networks import SquashedGaussianActor
 
-    log_std, log_std_head = None, None
+    log_std, log_std_head, head_hidden = None, None, ()
     if isinstance(network, ActorCritic):
         trunk, head_module, algorithm = network.policy_trunk, network.policy_head, "clipped_ppo"
         output = "softmax" if network.action_spec.discrete else "identity"
@@ -129,11 +131,12 @@ def policy_layers(network: Any, observation_space: Any, sensors: Sequence[str]) 
     elif isinstance(network, SquashedGaussianActor):
         trunk, head_module, algorithm, output = network.trunk, network.mean, "sac", "tanh"
         log_std_head = Dense(_array(network.log_std.weight).T.copy(), _array(network.log_std.bias), "none")
+        head_hidden = _dense_layers(network.head)
     else:
         raise TypeError(f"expected a PPO ActorCritic or a SAC SquashedGaussianActor, got {type(network).__name__}")
     branches, middleware = _trunk_layers(trunk, observation_space, sensors)
     head = Dense(_array(head_module.weight).T.copy(), _array(head_module.bias), "none")
-    return PolicyLayers(algorithm, branches, middleware, head, output, log_std, log_std_head)
+    return PolicyLayers(algorithm, branches, middleware, head, output, log_std, log_std_head, head_hidden)
 
 
 def value_layers(network: Any, observation_space: Any, sensors: Sequence[str]) -> PolicyLayers:
@@ -227,6 +230,7 @@ def load_policy_layers(network: Any, observation_space: Any, policy: PolicyLayer
                 _set_dense([network.value_head], [value.head])
         else:
             _set_trunk(network.trunk, policy, observation_space)
+            _set_dense(network.head, policy.head_hidden)
             _set_dense([network.mean], [policy.head])
             if policy.log_std_head is not None:
                 _set_dense([network.log_std], [policy.log_std_head])

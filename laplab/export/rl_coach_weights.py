@@ -16,12 +16,27 @@ import numpy as np
 
 from laplab.export.policy_layers import Conv, Dense, PolicyLayers, SensorBranch
 from laplab.export.tensorflow_checkpoint import (NETWORK_SCOPE, _features, channels_last_rows, conv_output_shape,
-                                                 rl_coach_variables)
+                                                 rl_coach_variables, sac_head_names)
 
 
 def expected_variables(policy: PolicyLayers, value: PolicyLayers | None) -> dict[str, tuple[int, ...]]:
     """``{rl_coach variable name: shape}`` of a checkpoint of networks shaped like ``policy`` / ``value``."""
     return {name: tuple(array.shape) for name, array in rl_coach_variables(policy, value).items()}
+
+
+def sac_head_layers(found: Mapping[str, tuple[int, ...]]) -> tuple[int, ...]:
+    """The widths of the hidden layers of the SAC policy head in ``found`` (name -> shape): rl_coach's
+    unnamed ``dense``, ``dense_1``... before the log-std layer, which has ``policy_mean``'s shape
+    (deepracer-simapp: (256,)); () for laplab's own head or when there is no SAC head."""
+    head = f"{NETWORK_SCOPE['sac']}/network_0/sac_policy_head_0"
+    mean = found.get(f"{head}/policy_mean/kernel")
+    widths: list[int] = []
+    for index in range(8):
+        shape = found.get(f"{head}/{'dense' if index == 0 else f'dense_{index}'}/kernel")
+        if shape is None or mean is None or tuple(shape) == tuple(mean):
+            break
+        widths.append(int(shape[-1]))
+    return tuple(widths)
 
 
 OPTIMIZER_SLOTS = ("/Adam", "/Momentum", "/RMSProp", "beta1_power", "beta2_power")
@@ -83,13 +98,23 @@ def network_layers(template: PolicyLayers, variables: Mapping[str, np.ndarray], 
         name = f"{scope}/middleware_fc_embedder/Dense_{2 * index}"
         kernel = take(f"{name}/kernel")
         middleware.append(Dense(kernel[inverse] if index == 0 else kernel, take(f"{name}/bias"), layer.activation))
-    head_rows = inverse if not template.middleware else np.arange(template.head.kernel.shape[0])
-    log_std, log_std_head = None, None
+    first = template.head_hidden[0] if template.head_hidden else template.head  # the layer reading the features
+    head_rows = inverse if not template.middleware else np.arange(first.kernel.shape[0])
+    log_std, log_std_head, head_hidden = None, None, []
     if template.algorithm == "sac" and template.output == "tanh":
-        layer = f"{scope}/{head}/policy_mean"
-        if template.log_std_head is not None:
-            std = f"{scope}/{head}/policy_log_std"
+        hidden_names, mean_name, log_std_name = sac_head_names(len(template.head_hidden))
+        for index, (name, dense) in enumerate(zip(hidden_names, template.head_hidden)):
+            kernel = take(f"{scope}/{head}/{name}/kernel")
+            head_hidden.append(Dense(kernel[head_rows] if index == 0 else kernel, take(f"{scope}/{head}/{name}/bias"),
+                                     dense.activation))
+        if head_hidden:
+            head_rows = np.arange(template.head.kernel.shape[0])
+        layer = f"{scope}/{head}/{mean_name}"
+        std = f"{scope}/{head}/{log_std_name}"
+        if template.log_std_head is not None and f"{std}/kernel" in variables:  # (a frozen graph has none)
             log_std_head = Dense(take(f"{std}/kernel")[head_rows], take(f"{std}/bias"), "none")
+        else:
+            log_std_head = template.log_std_head
     elif head.startswith("v_values_head"):
         layer = f"{scope}/{head}/output"
     else:
@@ -98,7 +123,7 @@ def network_layers(template: PolicyLayers, variables: Mapping[str, np.ndarray], 
             log_std = take(f"{scope}/{head}/policy_log_std").reshape(-1)
     head_layer = Dense(take(f"{layer}/kernel")[head_rows], take(f"{layer}/bias"), "none")
     return PolicyLayers(template.algorithm, tuple(branches), tuple(middleware), head_layer, template.output,
-                        log_std, log_std_head)
+                        log_std, log_std_head, tuple(head_hidden))
 
 
 def layers_from_variables(policy: PolicyLayers, value: PolicyLayers | None,

@@ -18,11 +18,14 @@ rl_coach: ``general_network.py``, ``embedders/embedder.py``, ``middlewares/fc_mi
   rl_coach does, so the first dense kernel after a camera has its rows reordered from laplab's
   channels-first flatten.
 
-SAC (``main_level/agent/policy/online/network_0``): the embedders and middleware as above; laplab's
-actor head (``sac_policy_head_0/policy_mean`` and ``/policy_log_std``, straight from the features)
-is not the simapp's (a dense 256 layer first). laplab's twin critics do not map onto rl_coach's
-``q`` network (one shared embedder, no middleware) nor its ``v`` network: they are not written.
-The simapp's saver keeps trainable variables only, so no optimizer slots are written either.
+SAC (``main_level/agent/policy/online/network_0``): the embedders and middleware as above, then the
+head ``sac_policy_head_0``. deepracer-simapp's ``SACPolicyHead`` (``policy_head_layers`` (256,))
+holds a relu dense 256 named by TensorFlow's layer counter, ``dense``, then ``policy_mean`` and the
+log-std layer ``dense_1`` (unnamed too), both reading the 256 features; laplab's own SAC head (no
+hidden layer) has ``policy_mean`` and ``policy_log_std`` straight from the features. laplab's twin
+critics do not map onto rl_coach's ``q`` network (its own embedders, no middleware, actions in the
+model's units) nor its ``v`` network: they are not written. The simapp's saver keeps trainable
+variables only, so no optimizer slots are written either.
 """
 
 from __future__ import annotations
@@ -71,6 +74,14 @@ def _features(branch: SensorBranch) -> tuple[int, np.ndarray | None]:
     return branch.shape[0], None
 
 
+def sac_head_names(hidden_layers: int) -> tuple[list[str], str, str]:
+    """(hidden layers, mean layer, log-std layer) of rl_coach's SAC policy head, relative to its
+    scope: deepracer-simapp's ``dense``, ``dense_1``... then ``policy_mean`` and the next ``dense_<k>``;
+    without hidden layers laplab's ``policy_mean`` and ``policy_log_std``."""
+    names = ["dense" if index == 0 else f"dense_{index}" for index in range(hidden_layers)]
+    return names, "policy_mean", f"dense_{hidden_layers}" if hidden_layers else "policy_log_std"
+
+
 def network_variables(layers: PolicyLayers, scope: str, head: str) -> dict[str, np.ndarray]:
     """``{variable name: array}`` of one rl_coach network (embedders, middleware, ``head`` scope)."""
     variables: dict[str, np.ndarray] = {}
@@ -94,14 +105,21 @@ def network_variables(layers: PolicyLayers, scope: str, head: str) -> dict[str, 
         kernel = dense.kernel[rows] if index == 0 else dense.kernel
         name = f"{scope}/middleware_fc_embedder/Dense_{2 * index}"
         variables[f"{name}/kernel"], variables[f"{name}/bias"] = kernel, dense.bias
-    head_rows = rows if not layers.middleware else np.arange(layers.head.kernel.shape[0])
+    first = layers.head_hidden[0] if layers.head_hidden else layers.head  # the layer reading the features
+    head_rows = rows if not layers.middleware else np.arange(first.kernel.shape[0])
     variables[f"{scope}/{RESCALER}"] = np.array(1.0, np.float32)
     if layers.algorithm == "sac" and layers.output == "tanh":
-        variables[f"{scope}/{head}/policy_mean/kernel"] = layers.head.kernel[head_rows]
-        variables[f"{scope}/{head}/policy_mean/bias"] = layers.head.bias
+        hidden_names, mean_name, log_std_name = sac_head_names(len(layers.head_hidden))
+        for index, (name, dense) in enumerate(zip(hidden_names, layers.head_hidden)):
+            variables[f"{scope}/{head}/{name}/kernel"] = dense.kernel[head_rows] if index == 0 else dense.kernel
+            variables[f"{scope}/{head}/{name}/bias"] = dense.bias
+        if layers.head_hidden:
+            head_rows = np.arange(layers.head.kernel.shape[0])
+        variables[f"{scope}/{head}/{mean_name}/kernel"] = layers.head.kernel[head_rows]
+        variables[f"{scope}/{head}/{mean_name}/bias"] = layers.head.bias
         if layers.log_std_head is not None:
-            variables[f"{scope}/{head}/policy_log_std/kernel"] = layers.log_std_head.kernel[head_rows]
-            variables[f"{scope}/{head}/policy_log_std/bias"] = layers.log_std_head.bias
+            variables[f"{scope}/{head}/{log_std_name}/kernel"] = layers.log_std_head.kernel[head_rows]
+            variables[f"{scope}/{head}/{log_std_name}/bias"] = layers.log_std_head.bias
     elif head.startswith("v_values_head"):
         variables[f"{scope}/{head}/output/kernel"] = layers.head.kernel[head_rows]
         variables[f"{scope}/{head}/output/bias"] = layers.head.bias
@@ -147,6 +165,8 @@ class CheckpointGraph:
             root = NETWORK_SCOPE[policy.algorithm]
             if policy.algorithm == "sac":
                 features = self._trunk(tf, policy, f"{root}/network_0")
+                for name in sac_head_names(len(policy.head_hidden))[0]:
+                    features = self._dense(tf, features, f"{root}/network_0/sac_policy_head_0/{name}", "relu")
                 mean = self._dense(tf, features, f"{root}/network_0/sac_policy_head_0/policy_mean", "none")
                 self.output = tf.nn.tanh(mean, name=f"{root}/network_0/sac_policy_head_0/policy")
             else:

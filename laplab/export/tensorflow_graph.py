@@ -98,6 +98,8 @@ def build_graph_def(layers: PolicyLayers, input_names: Mapping[str, str] | None 
         for index, layer in enumerate(layers.middleware):
             x = _dense(tf, x, layer, f"{body}/middleware_fc_embedder/Dense_{index}")
         head_name = "ppo_head_0" if algorithm == "clipped_ppo" else "sac_policy_head_0"
+        for index, layer in enumerate(layers.head_hidden):  # SAC: deepracer-simapp's dense 256
+            x = _dense(tf, x, layer, f"{body}/{head_name}/dense" + (f"_{index}" if index else ""))
         x = _dense(tf, x, layers.head, f"{body}/{head_name}/policy_fc")
         output = output_node_name(algorithm)
         if layers.output == "softmax":

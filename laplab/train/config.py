@@ -7,8 +7,8 @@ import re
 from dataclasses import dataclass, field, fields, replace
 
 from laplab.agents.hyperparameters import PRECISIONS, Hyperparameters, from_dict as hyperparameters_from_dict
-from laplab.env.metadata import ModelMetadata, metadata_from_dict
-from laplab.env.spec import ModelSpec, model_spec
+from laplab.env.metadata import MetadataError, ModelMetadata, metadata_from_dict
+from laplab.env.spec import ModelSpec, model_spec, validate_head_layers
 from laplab.errors import UserError
 from laplab.train.request import DEFAULT_MAX_TIME_S
 from laplab.sim.race_type import RaceType
@@ -61,6 +61,8 @@ class TrainConfig:
       without it is one), object avoidance, head-to-bot or head-to-model, with its options; its
       objects are on the track in training and evaluation, and a STATE model's vector carries their
       summary.
+    - ``policy_head_layers``: SAC's policy head layers (:class:`ModelSpec`): () laplab's; an imported
+      DeepRacer SAC model keeps deepracer-simapp's (256,), and so do its clones.
     - ``cloned_from``: for a clone, the model and checkpoint its weights came from
       (``"SOURCE (checkpoint NAME)"``); None for a model trained from scratch.
     """
@@ -82,6 +84,7 @@ class TrainConfig:
     tracks: tuple[str, ...] = ()
     workers: int = 1
     cloned_from: str | None = None
+    policy_head_layers: tuple[int, ...] = ()
     race_type: RaceType = field(default_factory=RaceType)
     version: int = CONFIG_VERSION
 
@@ -118,6 +121,14 @@ class TrainConfig:
                                                                                  "hyperparameters"))
         elif self.hyperparameters is not None and not isinstance(self.hyperparameters, Hyperparameters):
             raise ConfigError(f"hyperparameters must be Hyperparameters, got {type(self.hyperparameters).__name__}")
+        try:
+            object.__setattr__(self, "policy_head_layers",
+                               validate_head_layers(tuple(self.policy_head_layers)
+                                                    if isinstance(self.policy_head_layers, (list, tuple))
+                                                    else self.policy_head_layers,
+                                                    self.model_metadata.training_algorithm))
+        except MetadataError as exc:
+            raise ConfigError(str(exc), field="policy_head_layers") from None
         if isinstance(self.race_type, dict):  # laplab.json's object: validated here
             object.__setattr__(self, "race_type", RaceType.from_dict(self.race_type, "race_type"))
         elif not isinstance(self.race_type, RaceType):
@@ -151,7 +162,8 @@ class TrainConfig:
     @property
     def spec(self) -> ModelSpec:
         """The model's spec: its metadata with the hyperparameters' ``stack_size``."""
-        return model_spec(self.model_metadata, self.hyper().stack_size, self.race_type.has_objects)
+        return model_spec(self.model_metadata, self.hyper().stack_size, self.race_type.has_objects,
+                          self.policy_head_layers)
 
     @property
     def episode_limit(self) -> int:
@@ -170,7 +182,8 @@ class TrainConfig:
         """The config with every value written out (laplab.json: a resumed job keeps its
         hyperparameters even if laplab's defaults change)."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}
-        return {**values, "tracks": list(self.tracks), "model_metadata": self.model_metadata.to_dict(),
+        return {**values, "tracks": list(self.tracks), "policy_head_layers": list(self.policy_head_layers),
+                "model_metadata": self.model_metadata.to_dict(),
                 "hyperparameters": self.hyper().to_dict(), "vehicle": self.car,
                 "race_type": self.race_type.to_dict()}
 

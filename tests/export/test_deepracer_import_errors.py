@@ -1,5 +1,6 @@
 """Bad input to ``laplab import`` of DeepRacer models: a missing required file, a checkpoint that does
-not match the metadata's network or action space, a truncated .data file, archives with '..',
+not match the metadata's network or action space, a truncated .data file or one with a flipped byte
+(its tensor's CRC-32C), archives with '..',
 absolute paths or links, an archive over the size limit, SAC with a discrete action space, an S3
 prefix that does not exist. Each is one paragraph naming the file, and nothing is left behind."""
 
@@ -97,15 +98,43 @@ def test_a_missing_data_file_and_a_reward_that_does_not_compile(source):
     refused(source, "0_Step-0.ckpt.data-00000-of-00001: missing")
 
 
-def test_nan_weights_are_refused(source):
+HEAD_BIAS = "main_level/agent/main/online/network_1/ppo_head_0/policy_fc/bias"
+
+
+def overwrite(source: Path, name: str, at: int, new: bytes, checksum: bool) -> Path:
+    """Write ``new`` into variable ``name``'s bytes at ``at`` in the .data file; ``checksum``: update the
+    index's CRC-32C to match (a checkpoint TensorFlow wrote with those weights), else leave it."""
     from laplab.export.checkpoint_bundle import read_index
-    _, entries = read_index(source / "model/0_Step-0.ckpt.index")
-    entry = entries["main_level/agent/main/online/network_1/ppo_head_0/policy_fc/bias"]
+    from laplab.export.crc32c import crc32c, masked
+    index = source / "model/0_Step-0.ckpt.index"
+    entry = read_index(index)[1][name]
     data = source / "model/0_Step-0.ckpt.data-00000-of-00001"
     raw = bytearray(data.read_bytes())
-    raw[entry.offset:entry.offset + 4] = b"\x00\x00\xc0\x7f"  # float32 NaN
+    raw[entry.offset + at:entry.offset + at + len(new)] = new
     data.write_bytes(bytes(raw))
-    refused(source, "'main_level/agent/main/online/network_1/ppo_head_0/policy_fc/bias' holds NaN")
+    if checksum:  # the entry's field 6 (fixed32): tag 0x35, then the masked CRC, little-endian
+        old_field = b"\x35" + entry.crc32c.to_bytes(4, "little")
+        table = index.read_bytes()
+        assert table.count(old_field) == 1
+        tensor = bytes(raw[entry.offset:entry.offset + entry.size])
+        index.write_bytes(table.replace(old_field, b"\x35" + masked(crc32c(tensor)).to_bytes(4, "little")))
+    return data
+
+
+def test_nan_weights_are_refused(source):
+    overwrite(source, HEAD_BIAS, 0, b"\x00\x00\xc0\x7f", checksum=True)  # float32 NaN
+    refused(source, f"'{HEAD_BIAS}' holds NaN")
+
+
+def test_a_flipped_byte_fails_the_tensors_checksum(source):
+    from laplab.export.checkpoint_bundle import read_index
+    name = "main_level/agent/main/online/network_1/FRONT_FACING_CAMERA/Conv2d_0/kernel"
+    entry = read_index(source / "model/0_Step-0.ckpt.index")[1][name]
+    raw = (source / "model/0_Step-0.ckpt.data-00000-of-00001").read_bytes()
+    at = entry.size // 2
+    data = overwrite(source, name, at, bytes([raw[entry.offset + at] ^ 0x04]), checksum=False)
+    message = refused(source, f"{data}: variable '{name}'", "does not match its checksum in 0_Step-0.ckpt.index")
+    assert "Copy the checkpoint again" in message
 
 
 def test_a_checkpoint_named_but_absent(source):
