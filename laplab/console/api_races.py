@@ -97,17 +97,21 @@ def visible_race(request: Request, race_id: int, user: User) -> Race:
     return race
 
 
+def refuse_unless_manages(race: Race, user: User) -> Race:
+    """``race`` when ``user`` may change it (its owner, an admin); 403 naming the rule otherwise."""
+    if not manages(race, user):
+        raise HTTPException(403, {"message": f"race {race.id} belongs to another facilitator: only its owner or an "
+                                             "admin changes it"})
+    return race
+
+
 def managed_race(request: Request, race_id: int, user: User) -> Race:
-    """The race, when ``user`` may change it (its owner, an admin); 403 naming the rule otherwise."""
-    if not user.runs_races:
-        raise HTTPException(403, {"message": "only race facilitators and admins change races"})
+    """The race, when ``user`` (a race runner: the routes' :data:`race_runner` dependency) may change
+    it; 404 when there is none, 403 naming the rule when it is another facilitator's."""
     race = races(request).race(race_id)
     if race is None:
         raise HTTPException(404, {"message": f"no race {race_id}"})
-    if not manages(race, user):
-        raise HTTPException(403, {"message": f"race {race_id} belongs to another facilitator: only its owner or an "
-                                             "admin changes it"})
-    return race
+    return refuse_unless_manages(race, user)
 
 
 def _view(race: Race, user: User, request: Request) -> dict:
@@ -138,7 +142,7 @@ def get_race(race_id: int, request: Request, user: User = Depends(current_user))
 
 
 @router.put("/{race_id}")
-def edit_race(race_id: int, body: RaceBody, request: Request, user: User = Depends(current_user)) -> dict:
+def edit_race(race_id: int, body: RaceBody, request: Request, user: User = Depends(race_runner)) -> dict:
     race = managed_race(request, race_id, user)
     return _view(races(request).update(race.id, _settings(body.model_dump())), user, request)
 
@@ -153,17 +157,17 @@ def clone_race(race_id: int, request: Request, user: User = Depends(race_runner)
 
 
 @router.post("/{race_id}/close")
-def close_race(race_id: int, request: Request, user: User = Depends(current_user)) -> dict:
+def close_race(race_id: int, request: Request, user: User = Depends(race_runner)) -> dict:
     return _view(races(request).set_closed(managed_race(request, race_id, user).id, True), user, request)
 
 
 @router.post("/{race_id}/reopen")
-def reopen_race(race_id: int, request: Request, user: User = Depends(current_user)) -> dict:
+def reopen_race(race_id: int, request: Request, user: User = Depends(race_runner)) -> dict:
     return _view(races(request).set_closed(managed_race(request, race_id, user).id, False), user, request)
 
 
 @router.delete("/{race_id}")
-def delete_race(race_id: int, request: Request, user: User = Depends(current_user)) -> dict:
+def delete_race(race_id: int, request: Request, user: User = Depends(race_runner)) -> dict:
     """Delete the race and its submissions' records; their evaluations still queued or running stop."""
     race = managed_race(request, race_id, user)
     service = request.app.state.service
