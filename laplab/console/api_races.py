@@ -288,9 +288,9 @@ def submission_video(race_id: int, submission_id: int, request: Request, user: U
 
 def leaderboard_rows(request: Request, race: Race, user: User) -> list[dict]:
     ranked = board(_rows(request, race))
-    for row in ranked:  # model names only for their racer, the race's owner and admins
+    for row in ranked:  # model and login names only for their racer, the race's owner and admins
         if not (row["user_id"] == user.id or manages(race, user)):
-            row["model"] = None
+            row["model"] = row["name"] = None  # others see the racer's display name (alias) and avatar
     return ranked
 
 
@@ -306,7 +306,7 @@ async def leaderboard(race_id: int, request: Request, user: User = Depends(curre
 @router.get("/{race_id}/leaderboard.csv")
 def leaderboard_csv(race_id: int, request: Request, user: User = Depends(current_user)) -> Response:
     race = visible_race(request, race_id, user)
-    names = {u.id: u.name for u in request.app.state.store.users()}
+    names = {u.id: u.name for u in request.app.state.store.users()} if manages(race, user) else {}  # logins: its runners'
     text = csv_text(race.settings, leaderboard_rows(request, race, user), names)
     return Response(text, media_type="text/csv",
                     headers={"Content-Disposition": f'attachment; filename="race-{race.id}-results.csv"'})

@@ -102,3 +102,20 @@ def test_every_route_but_the_public_ones_depends_on_the_signed_in_user(people):
     unchecked = sorted(route.path for route in console.app.routes
                        if isinstance(route, APIRoute) and route.path not in PUBLIC and not asks_who(route.dependant))
     assert unchecked == []
+
+
+def test_the_track_leaderboard_shows_display_names_not_login_names(people):
+    from tests.evaluate.test_leaderboard import add_evaluation
+    console, clients = people
+    store, accounts = console.app.state.store, console.app.state.accounts
+    rosa = store.user_by_name("rosa")
+    accounts.update_profile(rosa, "Speedy Rosa", "IT", "#00aa00")
+    add_evaluation(f"u{rosa.id}-fast", [10.0, 11.0, 12.0], track="oval")  # hand-made laps: no job to wait for
+    store.claim_model(f"u{rosa.id}-fast", rosa.id)
+    console.app.state.service.models_changed()
+    for client, sees_model in ((clients["fritz"], False), (clients["rosa"], True)):
+        entry = client.get("/api/leaderboard?track=oval").json()[0]["entries"][0]
+        assert (entry["user"], entry["alias"], entry["initials"], entry["colour"], entry["country"]) == (
+            "Speedy Rosa", "Speedy Rosa", "SR", "#00aa00", "IT")
+        assert "rosa" not in {str(v) for v in entry.values()}  # the login name is nowhere on the board
+        assert entry["model"] == ("fast" if sees_model else None)
