@@ -21,7 +21,7 @@ from laplab.console.service import display_name
 from laplab.console.roles import accounts, check_quota, race_runner, races, refusal
 from laplab.jobs.db import User
 from laplab.jobs.runner import models_dir
-from laplab.races.results import ResultCache, board, csv_text, replay, submission_rows
+from laplab.races.results import ResultCache, board, csv_text, replay, rescoring, submission_rows
 from laplab.races.rules import RaceError, RaceSettings, sensor_refusal, window_refusal
 from laplab.races.store import Race
 
@@ -143,8 +143,15 @@ def get_race(race_id: int, request: Request, user: User = Depends(current_user))
 
 @router.put("/{race_id}")
 def edit_race(race_id: int, body: RaceBody, request: Request, user: User = Depends(race_runner)) -> dict:
+    """Change the race's settings. Its submissions rank under the new rules at once, from the laps they
+    drove (:mod:`laplab.races.rescore`); ``rescored`` says which now rank how (and why not)."""
     race = managed_race(request, race_id, user)
-    return _view(races(request).update(race.id, _settings(body.model_dump())), user, request)
+    settings = _settings(body.model_dump())
+    before = _rows(request, race)
+    edited = races(request).update(race.id, settings)
+    out = _view(edited, user, request)
+    out["rescored"] = rescoring(before, _rows(request, edited))
+    return out
 
 
 @router.post("/{race_id}/clone", status_code=201)
