@@ -21,7 +21,8 @@ from laplab.console.service import display_name
 from laplab.console.roles import accounts, check_quota, race_runner, races, refusal
 from laplab.jobs.db import User
 from laplab.jobs.runner import models_dir
-from laplab.races.results import ResultCache, board, csv_text, replay, rescoring, submission_rows
+from laplab.races.results import (ResultCache, board, csv_text, replay, rescoring, stale_submissions,
+                                  submission_rows)
 from laplab.races.rules import RaceError, RaceSettings, sensor_refusal, window_refusal
 from laplab.races.store import Race
 
@@ -238,8 +239,9 @@ def submit(race_id: int, body: Submit, request: Request, user: User = Depends(cu
     evaluation = race.settings.evaluation_params(track_key(race.settings.track, race.settings.direction))
     check_quota(request, user, "evaluate", evaluation)
     try:
+        stale = stale_submissions(race, races(request).submissions(race.id, user.id), service.store)
         sub = races(request).add_submission(race, user, key,
-                                            lambda: service.submit("evaluate", key, user.id, evaluation))
+                                            lambda: service.submit("evaluate", key, user.id, evaluation), stale)
     except RaceError as exc:
         raise refusal(exc, 409) from None
     return {"id": sub.id, "race": race.id, "job": sub.job_id, "model": body.model, "state": "queued"}

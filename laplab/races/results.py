@@ -95,6 +95,19 @@ def race_params(settings: RaceSettings) -> dict:
     return settings.evaluation_params(track_key(settings.track, settings.direction))
 
 
+def stale_submissions(race: Race, submissions: list[Submission], store: JobStore) -> int:
+    """How many of ``submissions`` drove another course than the race's now (track, direction, car,
+    race type: :func:`laplab.races.rescore.course_change`): they no longer rank, nor count toward
+    ``max_submissions``, so racers can submit again after such an edit."""
+    if not submissions:
+        return 0
+    from laplab.races.rescore import course_change
+    current = race_params(race.settings)
+    wanted = {sub.job_id for sub in submissions}
+    return sum(1 for job in store.jobs(kind=("evaluate",))
+               if job.id in wanted and course_change(current, job.params) is not None)
+
+
 def rescoring(before: list[dict], after: list[dict]) -> dict:
     """What an edit of a race's rules did to its submissions: the rows of :func:`submission_rows`
     ``before`` and ``after`` the edit (by submission id) give ``ranked`` / ``unranked`` counts now

@@ -137,3 +137,21 @@ def test_the_race_page_says_how_an_edit_re_ranked(race):
         finally:
             browser.close()
     assert clients["fay"].put(f"/api/races/{rid}", json=settings).json()["rescored"]["ranked"] == 2
+
+
+def test_submissions_that_drove_an_old_course_do_not_count_toward_the_limit(race):
+    from tests.console.conftest import create_tiny_model
+    console, clients, rid, settings, ids = race
+    store, ann = console.app.state.store, clients["ann"]
+    ann_id = store.user_by_name("ann").id
+    create_tiny_model(f"u{ann_id}-real")  # a model with a checkpoint: a submission queues its evaluation
+    store.claim_model(f"u{ann_id}-real", ann_id)
+    console.app.state.service.models_changed()
+    strict = {**settings, "max_submissions": 1}
+    assert clients["fay"].put(f"/api/races/{rid}", json=strict).status_code == 200
+    over = ann.post(f"/api/races/{rid}/submissions", json={"model": "real"})  # her old one still ranks: it counts
+    assert over.status_code == 409 and over.json()["detail"]["field"] == "max_submissions"
+    assert clients["fay"].put(f"/api/races/{rid}", json={**strict, "track": "classic_2018"}).status_code == 200
+    again = ann.post(f"/api/races/{rid}/submissions", json={"model": "real"})  # the old one drove the oval
+    assert again.status_code == 202, again.text
+    clients["fay"].delete(f"/api/races/{rid}")  # stops the evaluation it queued
