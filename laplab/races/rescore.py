@@ -14,14 +14,15 @@ What each change does to an evaluation driven under the old rules (its job's ``p
 - fewer resets per lap: a lap that needed more no longer counts as completed; more resets: a lap that
   ended at the old limit stays ended (the note says so);
 - track, direction, car physics or the race type and its objects and bots: the evaluation drove
-  another course, so it no longer ranks, and says why.
+  another course, so it no longer ranks, and says why;
+- allowed sensors: a model with a sensor the race no longer allows no longer ranks, and says why.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from laplab.races.rules import RaceSettings, Score, score
+from laplab.races.rules import RaceSettings, Score, score, sensor_refusal
 
 INCIDENT_COUNTS = ("off_track_count", "reversed_count", "immobilized_count")  # off-track penalty; crashes: collision
 DEFAULT_PENALTIES = {"off_track_penalty": 2.0, "crash_penalty": 5.0}  # laplab's evaluation defaults
@@ -88,11 +89,16 @@ def _seconds(value: float) -> str:
     return f"{value:g} s"
 
 
-def rescore(settings: RaceSettings, current: dict, driven: dict, trials: list[dict]) -> Rescored:
-    """Score ``trials`` (an evaluation's laps, driven with the job params ``driven``) under
-    ``settings`` (whose evaluation params are ``current``); see the module docstring for each rule."""
+def rescore(settings: RaceSettings, current: dict, driven: dict, trials: list[dict],
+            sensors: list[str] | None = None) -> Rescored:
+    """Score ``trials`` (an evaluation's laps, driven with the job params ``driven`` by a model with
+    ``sensors``, None: not recorded) under ``settings`` (whose evaluation params are ``current``);
+    see the module docstring for each rule."""
     if (why := course_change(current, driven)) is not None:
         return Rescored(list(trials), Score(None, why), ())
+    if sensors is not None and (why := sensor_refusal(settings, sensors)) is not None:
+        why = why.removeprefix("model: ").replace("the race allows", "the race now allows")
+        return Rescored(list(trials), Score(None, f"{why}: submit a model with those sensors to rank"), ())
     notes: list[str] = []
     laps_driven = len(trials)
     counted = [dict(t) for t in trials[:settings.laps]]

@@ -30,12 +30,13 @@ class ResultCache:
         self._lock = threading.Lock()
 
     def evaluation(self, job: Job, models_root: Path) -> dict:
-        """``{"trials": [...], "stamp": ..., "video": bool}`` of a done job (empty trials otherwise)."""
+        """``{"trials": [...], "stamp": ..., "video": bool, "sensors": [...] or None}`` of a done job
+        (empty trials otherwise)."""
         with self._lock:
             hit = self._done.get(job.id)
         if hit is not None:
             return hit
-        found = {"trials": [], "stamp": None, "video": False}
+        found = {"trials": [], "stamp": None, "video": False, "sensors": None}
         stamp = (job.result or {}).get("stamp") if job.status == "done" else None
         if stamp:
             from laplab.evaluate.trials import EvaluationError, read_evaluation_summary
@@ -46,7 +47,8 @@ class ResultCache:
                 videos = list(folder.evaluation_dir(stamp).glob("*.mp4")) + list(folder.evaluation_dir(stamp).glob("*.gif"))
             except (EvaluationError, OSError, ValueError):
                 document, videos = {}, []
-            found = {"trials": document.get("trials", []), "stamp": stamp, "video": bool(videos)}
+            found = {"trials": document.get("trials", []), "stamp": stamp, "video": bool(videos),
+                     "sensors": document.get("sensors")}
         if job.status not in ("queued", "running", "stopping"):
             with self._lock:
                 self._done[job.id] = found
@@ -78,7 +80,7 @@ def submission_rows(race: Race, submissions: list[Submission], store: JobStore, 
             found = cache.evaluation(job, models_root)
             row["laps"], row["video"] = laps_of(found["trials"]), found["video"]
             if row["state"] == "done":  # under the race's rules now, from the laps it drove (laplab.races.rescore)
-                now = rescore(race.settings, current, job.params, found["trials"])
+                now = rescore(race.settings, current, job.params, found["trials"], found.get("sensors"))
                 row["laps"], row["score"], row["reason"] = laps_of(now.trials), now.score.value, now.score.reason
                 row["rules_note"] = "; ".join(now.notes) or None
             elif row["state"] == "failed":

@@ -101,3 +101,15 @@ def test_head_to_bot_penalty_changes_are_marked_approximate():
     softer = replace(bots, collision_penalty=1.0)
     result = rescore(softer, driven_params(softer), driven_params(bots), [lap(15.0, crash=1)])
     assert result.score.value == pytest.approx(11.0) and "bots would have moved on" in result.notes[0]
+
+
+def test_a_sensor_the_race_no_longer_allows_unranks_and_says_why():
+    cameras_only = replace(RACE, sensors=("FRONT_FACING_CAMERA",))
+    trials = [lap(9.0)] * 3
+    lidar = rescore(cameras_only, driven_params(cameras_only), driven_params(RACE), trials,
+                    ["FRONT_FACING_CAMERA", "SECTOR_LIDAR"])
+    assert lidar.score.value is None and lidar.score.reason == (
+        "the race now allows the sensors FRONT_FACING_CAMERA; this model uses SECTOR_LIDAR: submit a model with "
+        "those sensors to rank")
+    assert rescore(cameras_only, driven_params(cameras_only), driven_params(RACE), trials,
+                   ["FRONT_FACING_CAMERA"]).score.value == 9.0
