@@ -2,12 +2,14 @@
 
 A console started with a cluster address runs the rollout workers of its training jobs (train,
 clone, resume) on that cluster, with the CLI's code (:class:`laplab.cluster.launch.RayWorkers`);
-the learner stays in the job's confined process on the console's machine. Such a job keeps the
+the learner stays in the job's confined process on the console's machine. Its evaluate jobs (race
+submissions' included) drive their laps on one of the cluster's nodes
+(:mod:`laplab.cluster.evaluations`) and write the result into the model's folder from the job. Such a job keeps the
 machine's network (bubblewrap's ``--share-net``) and nothing else: no database, no secret key, no
 other user's folder. Since its process sees neither the machine's ``/tmp`` nor ``/dev/shm`` (where a
 Ray node keeps its sockets and object store), a sandboxed job joins through Ray Client,
-``ray://HEAD:10001`` (``ray start --head`` starts that server). Evaluations and exports stay
-in-process and offline. See docs/console.md ("Jobs on a Ray cluster") for the threat model.
+``ray://HEAD:10001`` (``ray start --head`` starts that server). Exports stay in-process and
+offline. See docs/console.md ("Jobs on a Ray cluster") for the threat model.
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ from typing import Callable
 from laplab.train.errors import JobError
 
 DEFAULT_ROLLOUT_WORKERS = 2
-CLUSTER_KINDS = ("train", "clone", "resume")  # the jobs whose workers run on the cluster
+TRAINING_KINDS = ("train", "clone", "resume")  # the jobs whose rollout workers run on the cluster
+CLUSTER_KINDS = (*TRAINING_KINDS, "evaluate")  # ... and the jobs whose laps run there (laplab.cluster.evaluations)
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ from fastapi.concurrency import run_in_threadpool
 from pydantic import BaseModel, ConfigDict, Field
 
 from laplab.console.auth import current_user
-from laplab.console.roles import accounts, admin_user, quotas, refusal
+from laplab.console.roles import accounts, inviter, quota_admin, quotas, refusal, role_admin
 from laplab.jobs.accounts import AccountError, NotAllowed
 from laplab.jobs.db import StoreError, User
 from laplab.jobs.quotas import QuotaExceeded
@@ -69,7 +69,7 @@ class UserQuota(BaseModel):
 
 
 @router.post("/invites", status_code=201)
-def create_invite(body: NewInvite, request: Request, user: User = Depends(current_user)) -> dict:
+def create_invite(body: NewInvite, request: Request, user: User = Depends(inviter)) -> dict:
     """A one-time invitation link for ``role`` (racers for a facilitator); the code is shown once."""
     try:
         invite = accounts(request).create_invite(user, body.role, body.expires_in_h * 3600.0)
@@ -79,14 +79,12 @@ def create_invite(body: NewInvite, request: Request, user: User = Depends(curren
 
 
 @router.get("/invites")
-def list_invites(request: Request, user: User = Depends(current_user)) -> list[dict]:
-    if not user.runs_races:
-        raise HTTPException(403, {"message": "racers do not invite: ask your race facilitator"})
+def list_invites(request: Request, user: User = Depends(inviter)) -> list[dict]:
     return accounts(request).invites(user)
 
 
 @router.delete("/invites/{invite_id}")
-def revoke_invite(invite_id: str, request: Request, user: User = Depends(current_user)) -> dict:
+def revoke_invite(invite_id: str, request: Request, user: User = Depends(inviter)) -> dict:
     try:
         accounts(request).revoke_invite(user, invite_id)
     except AccountError as exc:
@@ -142,7 +140,7 @@ def change_profile(body: ProfileChange, request: Request, user: User = Depends(c
 
 
 @router.post("/users/{name}/role")
-def set_role(name: str, body: RoleChange, request: Request, user: User = Depends(admin_user)) -> dict:
+def set_role(name: str, body: RoleChange, request: Request, user: User = Depends(role_admin)) -> dict:
     if name == user.name:
         raise HTTPException(409, {"message": "you cannot change your own role here (use another admin's account)"})
     try:
@@ -155,12 +153,12 @@ def set_role(name: str, body: RoleChange, request: Request, user: User = Depends
 
 
 @router.get("/quotas")
-def get_quotas(request: Request, user: User = Depends(admin_user)) -> dict:
+def get_quotas(request: Request, user: User = Depends(quota_admin)) -> dict:
     return quotas(request).settings()
 
 
 @router.put("/quotas")
-def put_quotas(body: QuotaSettings, request: Request, user: User = Depends(admin_user)) -> dict:
+def put_quotas(body: QuotaSettings, request: Request, user: User = Depends(quota_admin)) -> dict:
     try:
         return quotas(request).set_settings(body.model_dump())
     except QuotaExceeded as exc:
@@ -168,7 +166,7 @@ def put_quotas(body: QuotaSettings, request: Request, user: User = Depends(admin
 
 
 @router.put("/users/{name}/quota")
-def put_user_quota(name: str, body: UserQuota, request: Request, user: User = Depends(admin_user)) -> dict:
+def put_user_quota(name: str, body: UserQuota, request: Request, user: User = Depends(quota_admin)) -> dict:
     target = request.app.state.store.user_by_name(name)
     if target is None:
         raise HTTPException(404, {"message": f"no user named {name!r}"})

@@ -21,7 +21,8 @@ from laplab.console.service import display_name
 from laplab.console.roles import accounts, check_quota, race_runner, races, refusal
 from laplab.jobs.db import User
 from laplab.jobs.runner import models_dir
-from laplab.races.results import ResultCache, board, csv_text, replay, submission_rows
+from laplab.races.results import (ResultCache, board, csv_text, replay, rescoring, stale_submissions,
+                                  submission_rows)
 from laplab.races.rules import RaceError, RaceSettings, sensor_refusal, window_refusal
 from laplab.races.store import Race
 
@@ -97,17 +98,21 @@ def visible_race(request: Request, race_id: int, user: User) -> Race:
     return race
 
 
+def refuse_unless_manages(race: Race, user: User) -> Race:
+    """``race`` when ``user`` may change it (its owner, an admin); 403 naming the rule otherwise."""
+    if not manages(race, user):
+        raise HTTPException(403, {"message": f"race {race.id} belongs to another facilitator: only its owner or an "
+                                             "admin changes it"})
+    return race
+
+
 def managed_race(request: Request, race_id: int, user: User) -> Race:
-    """The race, when ``user`` may change it (its owner, an admin); 403 naming the rule otherwise."""
-    if not user.runs_races:
-        raise HTTPException(403, {"message": "only race facilitators and admins change races"})
+    """The race, when ``user`` (a race runner: the routes' :data:`race_runner` dependency) may change
+    it; 404 when there is none, 403 naming the rule when it is another facilitator's."""
     race = races(request).race(race_id)
     if race is None:
         raise HTTPException(404, {"message": f"no race {race_id}"})
-    if not manages(race, user):
-        raise HTTPException(403, {"message": f"race {race_id} belongs to another facilitator: only its owner or an "
-                                             "admin changes it"})
-    return race
+    return refuse_unless_manages(race, user)
 
 
 def _view(race: Race, user: User, request: Request) -> dict:
@@ -138,9 +143,16 @@ def get_race(race_id: int, request: Request, user: User = Depends(current_user))
 
 
 @router.put("/{race_id}")
-def edit_race(race_id: int, body: RaceBody, request: Request, user: User = Depends(current_user)) -> dict:
+def edit_race(race_id: int, body: RaceBody, request: Request, user: User = Depends(race_runner)) -> dict:
+    """Change the race's settings. Its submissions rank under the new rules at once, from the laps they
+    drove (:mod:`laplab.races.rescore`); ``rescored`` says which now rank how (and why not)."""
     race = managed_race(request, race_id, user)
-    return _view(races(request).update(race.id, _settings(body.model_dump())), user, request)
+    settings = _settings(body.model_dump())
+    before = _rows(request, race)
+    edited = races(request).update(race.id, settings)
+    out = _view(edited, user, request)
+    out["rescored"] = rescoring(before, _rows(request, edited))
+    return out
 
 
 @router.post("/{race_id}/clone", status_code=201)
@@ -153,17 +165,17 @@ def clone_race(race_id: int, request: Request, user: User = Depends(race_runner)
 
 
 @router.post("/{race_id}/close")
-def close_race(race_id: int, request: Request, user: User = Depends(current_user)) -> dict:
+def close_race(race_id: int, request: Request, user: User = Depends(race_runner)) -> dict:
     return _view(races(request).set_closed(managed_race(request, race_id, user).id, True), user, request)
 
 
 @router.post("/{race_id}/reopen")
-def reopen_race(race_id: int, request: Request, user: User = Depends(current_user)) -> dict:
+def reopen_race(race_id: int, request: Request, user: User = Depends(race_runner)) -> dict:
     return _view(races(request).set_closed(managed_race(request, race_id, user).id, False), user, request)
 
 
 @router.delete("/{race_id}")
-def delete_race(race_id: int, request: Request, user: User = Depends(current_user)) -> dict:
+def delete_race(race_id: int, request: Request, user: User = Depends(race_runner)) -> dict:
     """Delete the race and its submissions' records; their evaluations still queued or running stop."""
     race = managed_race(request, race_id, user)
     service = request.app.state.service
@@ -227,8 +239,9 @@ def submit(race_id: int, body: Submit, request: Request, user: User = Depends(cu
     evaluation = race.settings.evaluation_params(track_key(race.settings.track, race.settings.direction))
     check_quota(request, user, "evaluate", evaluation)
     try:
+        stale = stale_submissions(race, races(request).submissions(race.id, user.id), service.store)
         sub = races(request).add_submission(race, user, key,
-                                            lambda: service.submit("evaluate", key, user.id, evaluation))
+                                            lambda: service.submit("evaluate", key, user.id, evaluation), stale)
     except RaceError as exc:
         raise refusal(exc, 409) from None
     return {"id": sub.id, "race": race.id, "job": sub.job_id, "model": body.model, "state": "queued"}
@@ -284,9 +297,9 @@ def submission_video(race_id: int, submission_id: int, request: Request, user: U
 
 def leaderboard_rows(request: Request, race: Race, user: User) -> list[dict]:
     ranked = board(_rows(request, race))
-    for row in ranked:  # model names only for their racer, the race's owner and admins
+    for row in ranked:  # model and login names only for their racer, the race's owner and admins
         if not (row["user_id"] == user.id or manages(race, user)):
-            row["model"] = None
+            row["model"] = row["name"] = None  # others see the racer's display name (alias) and avatar
     return ranked
 
 
@@ -302,7 +315,7 @@ async def leaderboard(race_id: int, request: Request, user: User = Depends(curre
 @router.get("/{race_id}/leaderboard.csv")
 def leaderboard_csv(race_id: int, request: Request, user: User = Depends(current_user)) -> Response:
     race = visible_race(request, race_id, user)
-    names = {u.id: u.name for u in request.app.state.store.users()}
+    names = {u.id: u.name for u in request.app.state.store.users()} if manages(race, user) else {}  # logins: its runners'
     text = csv_text(race.settings, leaderboard_rows(request, race, user), names)
     return Response(text, media_type="text/csv",
                     headers={"Content-Disposition": f'attachment; filename="race-{race.id}-results.csv"'})

@@ -207,7 +207,9 @@ def reward_examples(user: User = Depends(current_user)) -> list[dict]:
 
 @router.get("/leaderboard")
 async def leaderboard_route(request: Request, track: str | None = None, user: User = Depends(current_user)) -> list[dict]:
-    """Per track, every user's best evaluated model (average of 3 consecutive laps, best lap, completion)."""
+    """Per track, every user's best evaluated model (average of 3 consecutive laps, best lap, completion);
+    racers by their display name (``user``, ``alias``) and avatar (``initials``, ``colour``), never
+    their login name."""
     service = _service(request)
     from laplab.evaluate.leaderboard import leaderboard
     try:
@@ -215,7 +217,8 @@ async def leaderboard_route(request: Request, track: str | None = None, user: Us
     except _input_errors() as exc:
         raise bad_request(str(exc), "track") from None
     owners = service.owners()
-    names = {u.id: u.name for u in service.store.users()}
+    from laplab.console.roles import accounts
+    profiles = accounts(request).profiles()  # racers by their display names, as the race boards show them
     out = []
     for board_track, entries in boards.items():
         rows, seen = [], set()
@@ -224,7 +227,10 @@ async def leaderboard_route(request: Request, track: str | None = None, user: Us
             if owner is None or owner in seen:
                 continue
             seen.add(owner)
-            row = {**entry.to_dict(), "rank": len(rows) + 1, "user": names.get(owner)}
+            profile = profiles.get(owner)
+            shown = profile.to_dict() if profile else {"alias": "?", "initials": "?", "colour": "#888", "country": ""}
+            row = {**entry.to_dict(), "rank": len(rows) + 1, "user": shown["alias"], "alias": shown["alias"],
+                   "initials": shown["initials"], "colour": shown["colour"], "country": shown["country"]}
             # the model's name only for its owner (as they name it) and the admin (its key, to open it): names
             # never reveal another user's models; the racer's name and times are the leaderboard
             row["model"] = (service.handle(entry.model, owner, user) if user.is_admin or owner == user.id else None)

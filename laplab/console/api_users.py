@@ -10,7 +10,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, HTTPException, Request
 from pydantic import BaseModel, ConfigDict, Field
 
-from laplab.console.auth import current_user
+from laplab.console.roles import admin_user
 from laplab.console.safety import refuse_unless_admitted
 from laplab.jobs.db import StoreError, User
 
@@ -21,12 +21,6 @@ class NewUser(BaseModel):
     model_config = ConfigDict(extra="forbid")
     name: str = Field(max_length=64)
     admin: bool = False
-
-
-def _admin(request: Request, user: User):
-    if not user.is_admin:
-        raise HTTPException(403, {"message": "only the admin manages accounts"})
-    return request.app.state.store
 
 
 def _store_call(request: Request, change):
@@ -41,13 +35,13 @@ def _store_call(request: Request, change):
 
 
 @router.get("")
-def list_users(request: Request, user: User = Depends(current_user)) -> list[dict]:
-    return _admin(request, user).user_rows()
+def list_users(request: Request, user: User = Depends(admin_user)) -> list[dict]:
+    return request.app.state.store.user_rows()
 
 
 @router.post("", status_code=201)
-def create_user(body: NewUser, request: Request, user: User = Depends(current_user)) -> dict:
-    store = _admin(request, user)
+def create_user(body: NewUser, request: Request, user: User = Depends(admin_user)) -> dict:
+    store = request.app.state.store
     refuse_unless_admitted(request.app.state, body.admin)
     created, token = _store_call(request, lambda: store.add_user(body.name, is_admin=body.admin))
     if not created.is_admin:  # as an invitation's sign-up: the new-user quota
@@ -62,23 +56,23 @@ def _not_yourself(user: User, name: str, what: str) -> None:
 
 
 @router.post("/{name}/disable")
-def disable_user(name: str, request: Request, user: User = Depends(current_user)) -> dict:
-    store = _admin(request, user)
+def disable_user(name: str, request: Request, user: User = Depends(admin_user)) -> dict:
+    store = request.app.state.store
     _not_yourself(user, name, "disable")
     _store_call(request, lambda: store.set_disabled(name, True))
     return {"name": name, "disabled": True}
 
 
 @router.post("/{name}/enable")
-def enable_user(name: str, request: Request, user: User = Depends(current_user)) -> dict:
-    store = _admin(request, user)
+def enable_user(name: str, request: Request, user: User = Depends(admin_user)) -> dict:
+    store = request.app.state.store
     _store_call(request, lambda: store.set_disabled(name, False))
     return {"name": name, "disabled": False}
 
 
 @router.post("/{name}/tokens", status_code=201)
-def new_token(name: str, request: Request, user: User = Depends(current_user)) -> dict:
-    store = _admin(request, user)
+def new_token(name: str, request: Request, user: User = Depends(admin_user)) -> dict:
+    store = request.app.state.store
     target = store.user_by_name(name)
     if target is None:
         raise HTTPException(404, {"message": f"no user named {name!r}"})
@@ -87,19 +81,19 @@ def new_token(name: str, request: Request, user: User = Depends(current_user)) -
 
 
 @router.delete("/{name}/tokens")
-def revoke_all(name: str, request: Request, user: User = Depends(current_user)) -> dict:
-    store = _admin(request, user)
+def revoke_all(name: str, request: Request, user: User = Depends(admin_user)) -> dict:
+    store = request.app.state.store
     return {"name": name, "revoked": _store_call(request, lambda: store.revoke_tokens(name))}
 
 
 @router.delete("/{name}/tokens/{token_id}")
-def revoke_one(name: str, token_id: str, request: Request, user: User = Depends(current_user)) -> dict:
-    store = _admin(request, user)
+def revoke_one(name: str, token_id: str, request: Request, user: User = Depends(admin_user)) -> dict:
+    store = request.app.state.store
     return {"name": name, "revoked": _store_call(request, lambda: store.revoke_tokens(name, token_id))}
 
 
 @router.delete("/{name}")
-def remove_user(name: str, request: Request, user: User = Depends(current_user)) -> dict:
-    store = _admin(request, user)
+def remove_user(name: str, request: Request, user: User = Depends(admin_user)) -> dict:
+    store = request.app.state.store
     _not_yourself(user, name, "remove")
     return {"removed": name, "models_to_admin": _store_call(request, lambda: store.remove_user(name))}

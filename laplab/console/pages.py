@@ -14,6 +14,7 @@ from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse
 from fastapi.templating import Jinja2Templates
 
 from laplab.console.auth import SESSION_COOKIE, NotLoggedIn, csrf_token, current_user, identify, require_user
+from laplab.console.roles import admin_user
 from laplab.jobs.db import User
 
 TEMPLATES = Jinja2Templates(directory=str(Path(__file__).parent / "templates"))
@@ -171,10 +172,8 @@ def report_file(name: str, file: str, request: Request, user: User = Depends(cur
 
 
 @router.get("/users", response_class=HTMLResponse)
-def users_page(request: Request, user: User = Depends(current_user)):
+def users_page(request: Request, user: User = Depends(admin_user)):
     """The admin's accounts page (over ``/api/users``)."""
-    if not user.is_admin:
-        raise HTTPException(403, {"message": "only the admin manages accounts"})
     return _page(request, "users.html", user, title="Accounts")
 
 

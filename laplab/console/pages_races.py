@@ -9,10 +9,10 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Form, HTTPException, Request
 from fastapi.responses import HTMLResponse, RedirectResponse
 
-from laplab.console.api_races import manages, visible_race
+from laplab.console.api_races import manages, refuse_unless_manages, visible_race
 from laplab.console.auth import SESSION_COOKIE, current_user
 from laplab.console.pages import TEMPLATES, _page
-from laplab.console.roles import accounts, races
+from laplab.console.roles import accounts, inviter, race_runner, races
 from laplab.jobs.db import User
 
 router = APIRouter(include_in_schema=False)
@@ -24,9 +24,7 @@ def races_page(request: Request, user: User = Depends(current_user)):
 
 
 @router.get("/races/new", response_class=HTMLResponse)
-def new_race_page(request: Request, user: User = Depends(current_user)):
-    if not user.runs_races:
-        raise HTTPException(403, {"message": "only race facilitators and admins create races"})
+def new_race_page(request: Request, user: User = Depends(race_runner)):
     return _page(request, "race_edit.html", user, title="Create race", race_id=None)
 
 
@@ -47,10 +45,8 @@ def race_page(race_id: int, request: Request, user: User = Depends(current_user)
 
 
 @router.get("/races/{race_id}/edit", response_class=HTMLResponse)
-def edit_race_page(race_id: int, request: Request, user: User = Depends(current_user)):
-    race = visible_race(request, race_id, user)
-    if not manages(race, user):
-        raise HTTPException(403, {"message": "only the race's owner or an admin edits it"})
+def edit_race_page(race_id: int, request: Request, user: User = Depends(race_runner)):
+    race = refuse_unless_manages(visible_race(request, race_id, user), user)
     return _page(request, "race_edit.html", user, title="Edit race", race_id=race.id)
 
 
@@ -62,9 +58,7 @@ def race_board_page(race_id: int, request: Request, user: User = Depends(current
 
 
 @router.get("/invites", response_class=HTMLResponse)
-def invites_page(request: Request, user: User = Depends(current_user)):
-    if not user.runs_races:
-        raise HTTPException(403, {"message": "racers do not invite: ask your race facilitator"})
+def invites_page(request: Request, user: User = Depends(inviter)):
     return _page(request, "invites.html", user, title="Invitations")
 
 

@@ -271,9 +271,23 @@ def save_evaluation(folder: ModelFolder, result: EvaluationResult) -> tuple[str,
     return stamp, result
 
 
-def evaluate_model(name: str, settings: EvaluationSettings = EvaluationSettings()) -> tuple[EvaluationResult, str]:
-    """Evaluate stored model ``name`` at ``settings.checkpoint`` and keep the evaluation in its
-    folder; returns the result and the evaluation's stamp."""
+@dataclass(frozen=True)
+class PreparedEvaluation:
+    """What :func:`evaluate_policy` needs for a stored model, read from its folder: the ``policy``,
+    the ``track``, the ``vehicle`` and ``race`` (a :class:`laplab.sim.race_type.RaceType`) to drive,
+    the final ``settings`` and the optimal lap times (s, None when the race line cannot be solved)."""
+
+    policy: Any
+    track: Track
+    vehicle: VehicleParams
+    race: Any
+    settings: EvaluationSettings
+    optimal: float | None
+    standing: float | None
+
+
+def prepare_evaluation(name: str, settings: EvaluationSettings = EvaluationSettings()) -> PreparedEvaluation:
+    """Load stored model ``name`` at ``settings.checkpoint`` and everything its evaluation drives."""
     from laplab.evaluate.optimal import optimal_lap_time, standing_start_optimal_lap_time
     from laplab.track.registry import load_track
     from laplab.train.policy import load_model_policy
@@ -298,10 +312,22 @@ def evaluate_model(name: str, settings: EvaluationSettings = EvaluationSettings(
         import warnings
         warnings.warn(f"no optimal lap time for track {track.name!r}: {exc}", stacklevel=2)
         optimal = standing = None
-    result = evaluate_policy(policy, track, settings, vehicle=vehicle, optimal_lap_time=optimal,
-                             standing_start_lap_time=standing, race=race)
-    result = replace(result, trained_car=config.car)
-    stamp, result = save_evaluation(policy.folder, result)
+    return PreparedEvaluation(policy, track, vehicle, race, settings, optimal, standing)
+
+
+def run_prepared(prepared: PreparedEvaluation) -> EvaluationResult:
+    """Drive a :class:`PreparedEvaluation` (pure: no files; what a Ray node runs for a console job)."""
+    result = evaluate_policy(prepared.policy, prepared.track, prepared.settings, vehicle=prepared.vehicle,
+                             optimal_lap_time=prepared.optimal, standing_start_lap_time=prepared.standing,
+                             race=prepared.race)
+    return replace(result, trained_car=prepared.policy.config.car)
+
+
+def evaluate_model(name: str, settings: EvaluationSettings = EvaluationSettings()) -> tuple[EvaluationResult, str]:
+    """Evaluate stored model ``name`` at ``settings.checkpoint`` and keep the evaluation in its
+    folder; returns the result and the evaluation's stamp."""
+    prepared = prepare_evaluation(name, settings)
+    stamp, result = save_evaluation(prepared.policy.folder, run_prepared(prepared))
     return result, stamp
 
 

@@ -193,6 +193,13 @@ def _evaluate(files: JobFiles, spec: dict) -> None:
     allowed = tuple(f.name for f in fields(EvaluateRequest) if f.name != "force")  # the console keeps 1..5 trials
     settings = EvaluateRequest.from_mapping(spec["params"], allowed)
     files.event("started")
+    cluster = spec.get("cluster")  # a console started with --ray-address: the laps are driven on a Ray node
+    if cluster:
+        from laplab.cluster.evaluations import evaluate_model_on_ray
+        result, stamp, where = evaluate_model_on_ray(spec["model"], settings, cluster["address"],
+                                                     lambda message: print(message, flush=True), files.should_stop)
+        files.finish("done", stamp=stamp, summary=result.to_dict().get("summary"), driven_on=where)
+        return
     result, stamp = evaluate_model(spec["model"], settings)
     files.finish("done", stamp=stamp, summary=result.to_dict().get("summary"))
 

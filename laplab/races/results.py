@@ -14,7 +14,8 @@ import threading
 from pathlib import Path
 
 from laplab.jobs.db import Job, JobStore
-from laplab.races.rules import RaceSettings, rank, score
+from laplab.races.rescore import rescore
+from laplab.races.rules import RaceSettings, rank
 from laplab.races.store import Race, Submission
 
 JOB_STATES = {"queued": "queued", "running": "running", "stopping": "running", "done": "done",
@@ -29,12 +30,13 @@ class ResultCache:
         self._lock = threading.Lock()
 
     def evaluation(self, job: Job, models_root: Path) -> dict:
-        """``{"trials": [...], "stamp": ..., "video": bool}`` of a done job (empty trials otherwise)."""
+        """``{"trials": [...], "stamp": ..., "video": bool, "sensors": [...] or None}`` of a done job
+        (empty trials otherwise)."""
         with self._lock:
             hit = self._done.get(job.id)
         if hit is not None:
             return hit
-        found = {"trials": [], "stamp": None, "video": False}
+        found = {"trials": [], "stamp": None, "video": False, "sensors": None}
         stamp = (job.result or {}).get("stamp") if job.status == "done" else None
         if stamp:
             from laplab.evaluate.trials import EvaluationError, read_evaluation_summary
@@ -45,7 +47,8 @@ class ResultCache:
                 videos = list(folder.evaluation_dir(stamp).glob("*.mp4")) + list(folder.evaluation_dir(stamp).glob("*.gif"))
             except (EvaluationError, OSError, ValueError):
                 document, videos = {}, []
-            found = {"trials": document.get("trials", []), "stamp": stamp, "video": bool(videos)}
+            found = {"trials": document.get("trials", []), "stamp": stamp, "video": bool(videos),
+                     "sensors": document.get("sensors")}
         if job.status not in ("queued", "running", "stopping"):
             with self._lock:
                 self._done[job.id] = found
@@ -64,26 +67,68 @@ def submission_rows(race: Race, submissions: list[Submission], store: JobStore, 
                     models_root: Path) -> list[dict]:
     """One row per submission: state, laps, score and ``reason`` (why it does not rank, when it does not)."""
     jobs = {j.id: j for j in store.jobs(kind=("evaluate",))} if submissions else {}
+    current = race_params(race.settings) if submissions else {}
     rows = []
     for sub in submissions:
         job = jobs.get(sub.job_id)
         row = {"id": sub.id, "user_id": sub.user_id, "model": sub.model, "job": sub.job_id, "created": sub.created,
-               "state": "failed", "laps": [], "score": None, "reason": None, "video": False}
+               "state": "failed", "laps": [], "score": None, "reason": None, "video": False, "rules_note": None}
         if job is None:
             row["reason"] = "its evaluation job was removed (the model was deleted)"
         else:
             row["state"] = JOB_STATES.get(job.status, "failed")
             found = cache.evaluation(job, models_root)
             row["laps"], row["video"] = laps_of(found["trials"]), found["video"]
-            if row["state"] == "done":
-                result = score(race.settings, found["trials"])
-                row["score"], row["reason"] = result.value, result.reason
+            if row["state"] == "done":  # under the race's rules now, from the laps it drove (laplab.races.rescore)
+                now = rescore(race.settings, current, job.params, found["trials"], found.get("sensors"))
+                row["laps"], row["score"], row["reason"] = laps_of(now.trials), now.score.value, now.score.reason
+                row["rules_note"] = "; ".join(now.notes) or None
             elif row["state"] == "failed":
                 row["reason"] = f"its evaluation failed: {job.error or 'no reason recorded'}"
             else:
                 row["reason"] = f"its evaluation is {row['state']}"
         rows.append(row)
     return rows
+
+
+def race_params(settings: RaceSettings) -> dict:
+    """The evaluate job's params of a submission made now (the race's track in its direction)."""
+    from laplab.races.catalogue import track_key
+    return settings.evaluation_params(track_key(settings.track, settings.direction))
+
+
+def stale_submissions(race: Race, submissions: list[Submission], store: JobStore) -> int:
+    """How many of ``submissions`` drove another course than the race's now (track, direction, car,
+    race type: :func:`laplab.races.rescore.course_change`): they no longer rank, nor count toward
+    ``max_submissions``, so racers can submit again after such an edit."""
+    if not submissions:
+        return 0
+    from laplab.races.rescore import course_change
+    current = race_params(race.settings)
+    wanted = {sub.job_id for sub in submissions}
+    return sum(1 for job in store.jobs(kind=("evaluate",))
+               if job.id in wanted and course_change(current, job.params) is not None)
+
+
+def rescoring(before: list[dict], after: list[dict]) -> dict:
+    """What an edit of a race's rules did to its submissions: the rows of :func:`submission_rows`
+    ``before`` and ``after`` the edit (by submission id) give ``ranked`` / ``unranked`` counts now
+    and ``changed``: each submission whose score, reason or board rank moved, before and after."""
+    ranks_before = {r["id"]: r["rank"] for r in board(before)}
+    ranks_after = {r["id"]: r["rank"] for r in board(after)}
+    old = {r["id"]: r for r in before}
+    changed = []
+    for row in after:
+        was = old.get(row["id"], {})
+        if (was.get("score"), was.get("reason"), ranks_before.get(row["id"])) != (
+                row["score"], row["reason"], ranks_after.get(row["id"])):
+            changed.append({"id": row["id"], "user_id": row["user_id"], "alias": row.get("alias"),
+                            "score_before": was.get("score"), "score": row["score"],
+                            "rank_before": ranks_before.get(row["id"]), "rank": ranks_after.get(row["id"]),
+                            "reason": row["reason"], "rules_note": row["rules_note"]})
+    done = [r for r in after if r["state"] == "done"]
+    return {"submissions": len(after), "ranked": sum(r["score"] is not None for r in done),
+            "unranked": sum(r["score"] is None for r in done), "changed": changed}
 
 
 def board(rows: list[dict]) -> list[dict]:

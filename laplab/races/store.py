@@ -106,13 +106,15 @@ class RaceStore:
     def memberships(self, user_id: int) -> set[int]:
         return {r["race_id"] for r in self.store.select("SELECT race_id FROM race_members WHERE user_id=?", (user_id,))}
 
-    def add_submission(self, race: Race, user: User, model: str, submit_job) -> Submission:
+    def add_submission(self, race: Race, user: User, model: str, submit_job, not_counted: int = 0) -> Submission:
         """Record a submission and queue its evaluation in one step under the store's lock: the count
         against ``max_submissions`` is checked there, so two quick clicks cannot both slip through.
-        ``submit_job()`` queues the evaluate job and returns it."""
+        ``submit_job()`` queues the evaluate job and returns it; ``not_counted``: the racer's earlier
+        submissions that no longer count (they drove a course the race has left since:
+        :func:`laplab.races.results.stale_submissions`)."""
         with self.store.lock:
             count = self.store.select("SELECT COUNT(*) FROM race_submissions WHERE race_id=? AND user_id=?",
-                                      (race.id, user.id))[0][0]
+                                      (race.id, user.id))[0][0] - max(0, int(not_counted))
             if count >= race.settings.max_submissions:
                 raise RaceError(f"max_submissions: you have made {count} submissions to this race, its limit "
                                 f"({race.settings.max_submissions})", field="max_submissions")

@@ -60,11 +60,24 @@ def load_model_policy(name: str, checkpoint: str = "best", seed: int = 0) -> Mod
         raise FileNotFoundError(f"no model named {name!r} (looked in {folder.root}).")
     config = check_model_files(folder, what="load", hyperparameter_keys=("stack_size",))  # laplab.json, and DeepRacer's files agree with it
     checkpoint_name, state = read_checkpoint(folder, checkpoint)
+    try:
+        learner_state = state["learner"]
+    except (KeyError, TypeError):
+        raise CorruptFileError(f"checkpoint {str(folder.model_dir / checkpoint_name)!r} has no learner state.") from None
+    return policy_from_state(name, folder, config, checkpoint_name, learner_state, seed,
+                             where=str(folder.model_dir / checkpoint_name))
+
+
+def policy_from_state(name: str, folder: ModelFolder | None, config: TrainConfig, checkpoint_name: str,
+                      learner_state: dict, seed: int = 0, where: str | None = None) -> ModelPolicy:
+    """The policy of ``config``'s network with ``learner_state`` (a checkpoint's learner state): what
+    :func:`load_model_policy` returns, built where no model folder is (``folder`` None), e.g. on a Ray
+    node evaluating a race submission (:mod:`laplab.cluster.evaluations`)."""
     # Driving, evaluation and export run in float32 whatever the training precision was.
     learner = build_learner(config, seed, precision="float32")
     try:
-        learner.load_state_dict(state["learner"])
+        learner.load_state_dict(learner_state)
     except (KeyError, ValueError, RuntimeError, TypeError) as exc:
-        raise CorruptFileError(f"checkpoint {str(folder.model_dir / checkpoint_name)!r} does not fit the model's "
+        raise CorruptFileError(f"checkpoint {where or checkpoint_name!r} does not fit the model's "
                                f"network ({type(exc).__name__}: {' '.join(str(exc).split())[:200]}).") from None
     return ModelPolicy(name, folder, config, config.spec, checkpoint_name, learner)

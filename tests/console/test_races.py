@@ -150,6 +150,7 @@ def test_private_race_submissions_board_and_refusals(console, people, make_model
     assert scores == sorted(scores)
     for entry in ranked:  # the board never names another racer's model
         assert entry["model"] is None or entry["user_id"] == console.app.state.store.user_by_name("rita").id
+        assert entry["name"] is None or entry["name"] == "rita"  # another racer's login name: never
         assert entry["alias"] in ("Rita Racer", "Ravi Racer") and entry["initials"] == "RR"
     unranked = [s for s in wait_done(rita, rid, 2) if s["score"] is None]
     assert all(s["reason"] for s in unranked)

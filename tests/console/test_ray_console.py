@@ -6,7 +6,8 @@
   ``logs/workers.json`` follows the workers (in the test's process, as `laplab train --workers 2`);
 - a console job on a server with the cluster trains with 2 workers; the model's API shows them;
 - bubblewrap without ``--share-net`` cannot reach the cluster (so only such jobs get the network);
-- bad addresses and worker counts are one paragraph, never a traceback.
+- bad addresses and worker counts are one paragraph, never a traceback;
+- a race submission's evaluation drives its lap on the cluster and ranks as a local one.
 """
 
 from __future__ import annotations
@@ -237,3 +238,33 @@ def test_a_cluster_gone_at_job_time_fails_the_job_with_one_paragraph(tmp_path, s
     assert model["status"] == "failed"
     assert "cannot reach the Ray cluster at ray://127.0.0.1:9" in model["error"] and "Traceback" not in model["error"]
     assert "\n" not in model["error"].strip()
+
+
+def test_a_race_submission_is_evaluated_on_the_cluster(ray_head, tmp_path, serve_console):
+    """With --ray-address a race submission's evaluate job drives its lap on a Ray worker and the result
+    reaches the race's board as a local one does."""
+    from tests.console.conftest import create_tiny_model
+    cluster = RayCluster.at(ray_head["client"], 1)  # with this user's Ray token, as `laplab serve` takes it
+    with serve_console(tmp_path / "home", workers=1, cluster=cluster) as console:
+        store = console.app.state.store
+        fay = console.client(store.add_user("fay", role="facilitator")[1])
+        rita_user, rita_token = store.add_user("rita", role="racer")
+        rita = console.client(rita_token)
+        create_tiny_model(f"u{rita_user.id}-fast")
+        store.claim_model(f"u{rita_user.id}-fast", rita_user.id)
+        console.app.state.service.models_changed()
+        race = fay.post("/api/races", json={"name": "Cluster race", "track": "oval", "laps": 1,
+                                            "ranking": "best_lap"}).json()
+        submitted = rita.post(f"/api/races/{race['id']}/submissions", json={"model": "fast"})
+        assert submitted.status_code == 202, submitted.text
+        deadline = time.monotonic() + 400
+        while (sub := rita.get(f"/api/races/{race['id']}/submissions").json()[0])["state"] not in ("done", "failed"):
+            assert time.monotonic() < deadline, sub
+            time.sleep(1.0)
+        job = store.job(submitted.json()["job"])
+        log = (tmp_path / "home" / "jobs" / str(job.id) / "log.txt").read_text()
+        assert sub["state"] == "done", (sub, log)
+        assert f"evaluating 1 lap on the Ray cluster at {ray_head['client']}" in log and "the laps were driven on" in log
+        assert job.result["driven_on"]["pid"] not in (job.pid, os.getpid()) and job.result["driven_on"]["node_id"]  # a Ray worker drove
+        assert len(sub["laps"]) == 1 and (sub["score"] is not None or sub["reason"])
+        assert rita.get(f"/api/races/{race['id']}/submissions/{sub['id']}/video").status_code == 200

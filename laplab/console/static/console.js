@@ -422,7 +422,7 @@ const Console = (() => {
       if (!select.options.length || select.options.length === 1) for (const b of boards) select.append(el("option", {value: b.track}, b.track));
       $("#boards").replaceChildren(...(boards.length ? boards.map(b => el("section", {class: "card", "data-board": b.track}, el("h2", {}, b.track),
         el("table", {class: "grid"}, el("thead", {}, el("tr", {}, ...["Rank", "Racer", "Model", "Average of 3 laps", "Best lap", "Completion", "Off-track", "Gap to optimal"].map((h, i) => el("th", {class: i > 2 ? "num" : ""}, h)))),
-          el("tbody", {}, ...b.entries.map(e => el("tr", {}, el("td", {}, e.rank), el("td", {}, e.user || "–"), el("td", {}, e.model ?? "–"), el("td", {class: "num"}, lap(e.average_3)),
+          el("tbody", {}, ...b.entries.map(e => el("tr", {}, el("td", {}, e.rank), el("td", {}, e.alias ? el("span", {class: "avatar", style: `background:${e.colour};width:24px;height:24px;font-size:10px`, title: e.alias}, e.initials) : "", " ", e.alias || "–"), el("td", {}, e.model ?? "–"), el("td", {class: "num"}, lap(e.average_3)),
             el("td", {class: "num"}, lap(e.best_lap)), el("td", {class: "num"}, `${fmt(e.completion, 1)} %`), el("td", {class: "num"}, e.off_track_count),
             el("td", {class: "num"}, e.gap_to_optimal ? `${e.gap_to_optimal >= 1 ? "+" : ""}${fmt(100 * (e.gap_to_optimal - 1), 1)} %` : "–"))))))) : [el("p", {class: "card empty"}, "No evaluations yet: evaluate a model to enter the leaderboard.")]));
     };

@@ -80,6 +80,9 @@ const Races = (() => {
       body.options = options();
       try {
         const r = await api(raceId ? "PUT" : "POST", raceId ? `/api/races/${raceId}` : "/api/races", body);
+        const re = r.rescored;  // an edit re-ranks the submissions from their recorded laps: say how on the race's page
+        if (re && re.changed.length) sessionStorage.setItem(`rescored-${r.id}`, `Re-ranked under the new rules: ${re.ranked} of ${re.submissions} submissions rank, ` +
+          `${re.changed.length} changed (${re.changed.map(c => `${c.alias}: ${c.rank_before ? "#" + c.rank_before : "unranked"} → ${c.rank ? "#" + c.rank : "unranked"}`).join(", ")}).`);
         location.href = `/races/${r.id}`;
       } catch (e) { say($("#form-error"), e.message); if (e.detail?.field && $(`#${e.detail.field}`)) $(`#${e.detail.field}`).focus(); }
     });
@@ -110,6 +113,8 @@ const Races = (() => {
     const head = $("#board-head"), last = head.lastElementChild;
     for (let i = 1; i <= race.laps; i++) head.insertBefore(el("th", {class: "num"}, `Lap ${i}`), last);
     $("#race-state").replaceChildren(el("span", {class: `status ${race.open_now ? "running" : "done"}`}, race.open_now ? "open for submissions" : race.closed ? "closed" : "not open now"));
+    const rescored = sessionStorage.getItem(`rescored-${raceId}`);
+    if (rescored) { sessionStorage.removeItem(`rescored-${raceId}`); $("#race-state").after(el("p", {class: "ok", id: "rescored"}, rescored)); }
     if (race.code) { $("#code-box").hidden = false; $("#race-code").textContent = race.code; $("#race-link").textContent = `${location.origin}/races/join/${race.code}`; }
     const models = await api("GET", "/api/models");
     $("#model").replaceChildren(...models.filter(m => m.status === "ready" || m.status === "interrupted").map(m => el("option", {value: m.name}, m.name)));
@@ -135,7 +140,7 @@ const Races = (() => {
       $("#board-empty").hidden = board.entries.length > 0;
       $("#subs tbody").replaceChildren(...subs.reverse().map(s => el("tr", {"data-submission": s.id, "data-state": s.state},
         el("td", {}, when(s.created)), el("td", {}, manages ? `${s.alias} · ` : "", s.model), el("td", {}, el("span", {class: `status ${s.state}`}, s.state)),
-        el("td", {class: "num"}, secs(s.score)), el("td", {}, lapsText(s.laps)), el("td", {class: "reason"}, s.score === null ? s.reason || "" : "ranked"),
+        el("td", {class: "num"}, secs(s.score)), el("td", {}, lapsText(s.laps)), el("td", {class: "reason"}, s.score === null ? s.reason || "" : "ranked", s.rules_note ? el("div", {class: "muted"}, s.rules_note) : ""),
         el("td", {}, s.video ? el("a", {href: `/api/races/${raceId}/submissions/${s.id}/video`, target: "_blank"}, "video") : ""))));
       $("#subs-empty").hidden = subs.length > 0;
     }
