@@ -13,9 +13,10 @@ from fastapi.responses import FileResponse, StreamingResponse
 from starlette.background import BackgroundTask
 
 from laplab.console import exports
-from laplab.console.api import (Evaluate, ValidateReward, _field_of, _input_errors, _service, _validate_reward,
-                                bad_request, check_track_name, own_model)
+from laplab.console.api import (_field_of, _input_errors, _service, _validate_reward, bad_request, check_track_name,
+                                own_model)
 from laplab.console.auth import current_user
+from laplab.console.bodies import Evaluate, ValidateReward
 from laplab.console.events import sse_message
 from laplab.jobs.db import User
 from laplab.jobs.runner import job_folder, models_dir

@@ -14,16 +14,14 @@ import os
 import shutil
 import threading
 import time
-from datetime import datetime, timezone
-from pathlib import Path
-from typing import Any
 
+from laplab.console.catalog import ModelCatalog, iso_time, read_json
 from laplab.console.events import EventHub
 from laplab.console.outcomes import (INTERRUPTED_BY_SHUTDOWN, TRAIN_KINDS, death_reason, time_left_s,  # noqa: F401
                                      without_paths)
 from laplab.jobs.db import ACTIVE_STATUSES, Job, JobStore, User
 from laplab.jobs.runner import JobRunner, job_folder, models_dir
-from laplab.store.layout import ModelFolder, list_models
+from laplab.store.layout import list_models
 
 TICK_S = 1.0 / 30.0
 LIST_TTL_S = 0.25
@@ -44,66 +42,6 @@ def display_name(key: str, owner: int | None) -> str:
     """The name ``key``'s owner knows it by."""
     prefix = f"u{owner}-"
     return key[len(prefix):] if owner is not None and key.startswith(prefix) else key
-
-
-def _iso(timestamp: float | None) -> str | None:
-    return None if timestamp is None else datetime.fromtimestamp(timestamp, timezone.utc).isoformat(timespec="seconds")
-
-
-def _read_json(path: Path) -> Any:
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-
-
-class ModelCatalog:
-    """Summaries of model folders, re-read only when one of their files changed."""
-
-    def __init__(self):
-        self._cache: dict[str, tuple[tuple, dict]] = {}
-
-    @staticmethod
-    def _files(folder: ModelFolder) -> tuple[Path, ...]:
-        return (folder.laplab_config, folder.model_metadata, folder.metrics_dir / "laplab-iterations.json",
-                folder.deepracer_checkpoints, folder.error_file, folder.metrics_dir / "evaluation")
-
-    def summary(self, name: str) -> dict:
-        folder = ModelFolder(models_dir() / name)
-        key = tuple(p.stat().st_mtime_ns if p.exists() else 0 for p in self._files(folder))
-        hit = self._cache.get(name)
-        if hit is not None and hit[0] == key:
-            return hit[1]
-        config = _read_json(folder.laplab_config) or {}
-        metadata = _read_json(folder.model_metadata) or config.get("model_metadata") or {}
-        iterations = (_read_json(folder.metrics_dir / "laplab-iterations.json") or {}).get("iterations", [])
-        training_best = None
-        for row in iterations:
-            if row.get("best_lap_time") is not None:
-                training_best = row["best_lap_time"] if training_best is None else min(training_best, row["best_lap_time"])
-        best = _best_evaluated_lap(folder, config)
-        created = folder.root.stat().st_mtime if folder.root.exists() else None
-        if folder.laplab_config.exists():
-            created = folder.laplab_config.stat().st_mtime
-        summary = {"name": name, "track": config.get("track"), "sensor": metadata.get("sensor"),
-                   "algorithm": metadata.get("training_algorithm"),
-                   "action_space_type": metadata.get("action_space_type"),
-                   "created": _iso(created), "best_lap_time": best, "best_training_lap": training_best,
-                   "iteration_count": len(iterations),
-                   "max_time_s": config.get("max_time_s"), "error": folder.read_error(),
-                   "race_type": _race_summary(config.get("race_type")),
-                   "evaluations": len(folder.list_evaluations()) if folder.exists() else 0,
-                   "exists": folder.laplab_config.exists() or folder.model_metadata.exists()}
-        self._cache[name] = (key, summary)
-        return summary
-
-    @staticmethod
-    def iterations(name: str) -> list[dict]:
-        folder = ModelFolder(models_dir() / name)
-        rows = (_read_json(folder.metrics_dir / "laplab-iterations.json") or {}).get("iterations", [])
-        keep = ("iteration", "episodes", "env_steps", "mean_reward", "mean_progress", "completion_rate",
-                "eval_progress", "best_lap_time", "eval_lap_time", "steps_per_second", "elapsed_s", "time_left_s")
-        return [{k: r.get(k) for k in keep} for r in rows]
 
 
 class ConsoleService:
@@ -179,7 +117,7 @@ class ConsoleService:
             summary["error"] = summary.get("error") or job.error
         summary["error"] = without_paths(summary.get("error"))
         if summary["created"] is None and record is not None:
-            summary["created"] = _iso(record["created"])
+            summary["created"] = iso_time(record["created"])
         return summary
 
     @staticmethod
@@ -360,7 +298,7 @@ class ConsoleService:
                 continue
             if mtime != self._poses_mtime.get((job.id, name)):
                 self._poses_mtime[(job.id, name)] = mtime
-                document = _read_json(path)
+                document = read_json(path)
                 if document:
                     publish(job.model, document)
 
@@ -384,7 +322,7 @@ class ConsoleService:
         if job is None:
             return
         self._tail(job)
-        result = _read_json(job_folder(job_id) / "result.json") or {}
+        result = read_json(job_folder(job_id) / "result.json") or {}
         status = result.get("status")
         error = result.get("error")
         if runner_error is not None:  # the runner ended it (wall-clock limit), whatever it wrote last
@@ -408,20 +346,6 @@ class ConsoleService:
         self._publish_status(job.model, job_id, model_status, kind=job.kind, error=error)
 
 
-def _best_evaluated_lap(folder: ModelFolder, config: dict) -> float | None:
-    """The model's best lap, as laplab defines it everywhere (:func:`laplab.evaluate.leaderboard.
-    best_evaluated_lap`): evaluations under the standard rules on its training track and race."""
-    if not folder.exists():
-        return None
-    from laplab.evaluate.leaderboard import best_evaluated_lap, load_records_of
-    try:
-        records = load_records_of(folder.name, folder.root.parent)
-    except Exception:  # noqa: BLE001 - a damaged summary: no best lap rather than a broken list
-        return None
-    return best_evaluated_lap(folder.name, config.get("track"), _race_summary(config.get("race_type")) or "time trial",
-                              records)
-
-
 def default_workers() -> int:
     """What this machine can run: one training per two cores (each uses a core plus its learner)."""
     return max(1, (os.cpu_count() or 2) // 2)
@@ -432,12 +356,3 @@ def threads_per_job(workers: int) -> int:
     learner and simulator (a camera job spends ~85 % of its time learning, ~1.8x faster on two threads
     than one)."""
     return max(1, (os.cpu_count() or 1) // max(1, int(workers)))
-
-
-def _race_summary(data) -> str:
-    """A model's race type in one line (``laplab.json``'s ``race_type``; none: a time trial)."""
-    from laplab.sim.race_type import RaceType, RaceTypeError
-    try:
-        return RaceType.from_dict(data).summary()
-    except (RaceTypeError, TypeError):
-        return "unreadable race type"

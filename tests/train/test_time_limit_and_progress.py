@@ -167,7 +167,7 @@ def test_a_stop_before_the_first_minibatch_still_writes_the_iteration_log_and_re
     # the limit cut learning before any gradient step: the losses are not numbers, written as JSON null
     from laplab.analysis.loaders import load_training_history
     from laplab.analysis.report import build_report
-    from laplab.console.service import ModelCatalog
+    from laplab.console.catalog import ModelCatalog
     from laplab.store.atomic import read_json
 
     trainer = create_training("cut", _config())
