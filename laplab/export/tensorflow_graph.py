@@ -22,6 +22,7 @@ deepracer-simapp freezes it: its ``Const`` nodes carry rl_coach's variable names
 
 from __future__ import annotations
 
+import contextlib
 from typing import Any, Mapping
 
 import numpy as np
@@ -52,6 +53,15 @@ def _import_tensorflow():
     return tf
 
 
+def _quiet_deprecations():
+    """TensorFlow's context that keeps its TF1 deprecation notices off the export's output."""
+    try:
+        from tensorflow.python.util.deprecation import silence
+    except ImportError:  # another TensorFlow layout: the notices show, nothing else changes
+        return contextlib.nullcontext()
+    return silence()
+
+
 def build_graph_def(layers: PolicyLayers, input_names: Mapping[str, str] | None = None) -> Any:
     """The frozen ``tf.compat.v1.GraphDef`` of ``layers``: rl_coach's policy network with laplab's
     weights, its variables turned into constants of the same names. ``input_names`` maps a sensor to
@@ -65,7 +75,7 @@ def build_graph_def(layers: PolicyLayers, input_names: Mapping[str, str] | None 
         output = output_node_name(layers.algorithm)
         if network.output.op.name != output:
             raise ValueError(f"output node {output!r} came out as {network.output.op.name!r}")
-        with network.graph.as_default():
+        with network.graph.as_default(), _quiet_deprecations():
             return tf.compat.v1.graph_util.convert_variables_to_constants(
                 network.session, network.graph.as_graph_def(), [output])
     finally:
