@@ -169,7 +169,8 @@ def duel_view(request: Request, job: Job, viewer: User) -> dict:
     out = {"id": job.id, "status": DUEL_STATUS.get(job.status, "failed"), "models": [names[k] for k in keys],
            "colours": colours, "track": job.params.get("track"), "laps": job.params.get("laps"),
            "max_time_s": job.params.get("max_time_s"), "created": job.created, "finished": job.finished,
-           "error": job.error, "racers": [], "duration": None, "picture": None, "video": None}
+           "error": job.error, "racers": [], "duration": None, "picture": None, "video": None,
+           "stopped": bool((job.result or {}).get("stop_reason") == "stopped")}
     document = _race_document(job) if out["status"] == "done" else None
     if document:
         base = f"/api/models/{home}/duels/{job.id}"

@@ -8,7 +8,8 @@ otherwise) while the others drive on; while it stands, and until it is clear of 
 collides with nothing (DeepRacer's blinking car). A car that hits another is the one that crashed; both are
 put back if both overlap. The finish order is by finishing time; cars still racing at
 ``max_time`` are ranked after them by laps and progress. Drivers may have different action spaces and
-sensors (each reads its own observations), but must share one car (physics version).
+sensors (each reads its own observations), but must share one car (physics version). ``should_stop``
+(asked once a step) ends the race early: it is ranked as at ``max_time`` and marked ``stopped``.
 """
 
 from __future__ import annotations
@@ -65,16 +66,18 @@ class RacerResult:
 
 @dataclass
 class RaceResult:
-    """A race: its racers in finishing order, and every step's poses (T, cars, 3) for pictures."""
+    """A race: its racers in finishing order, and every step's poses (T, cars, 3) for pictures;
+    ``stopped``: it was stopped before every car finished or ``max_time`` ran out."""
 
     track: Track
     racers: list[RacerResult]
     poses: np.ndarray = field(repr=False)
     clock: np.ndarray = field(repr=False)
+    stopped: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return {"track": self.track.name, "racers": [r.to_dict() for r in self.racers],
-                "duration": float(self.clock[-1]) if len(self.clock) else 0.0}
+                "duration": float(self.clock[-1]) if len(self.clock) else 0.0, "stopped": self.stopped}
 
 
 def check_same_car(names: list[str], cars: list[str]) -> None:
@@ -87,8 +90,9 @@ def check_same_car(names: list[str], cars: list[str]) -> None:
 
 
 def run_race(drivers: list[Driver], track: Track, vehicle: VehicleParams, laps: int = 1, max_time: float = 180.0,
-             crash_penalty: float = 5.0, off_track_penalty: float = 2.0, seed: int = 0) -> RaceResult:
-    """Race ``drivers`` on ``track`` (see the module docstring)."""
+             crash_penalty: float = 5.0, off_track_penalty: float = 2.0, seed: int = 0,
+             should_stop: Callable[[], bool] | None = None) -> RaceResult:
+    """Race ``drivers`` on ``track`` (see the module docstring); ``max_time`` in simulated s."""
     if len(drivers) < 2:
         raise RaceTypeError("a head-to-model race needs at least two models", field="models")
     n = len(drivers)
@@ -103,7 +107,11 @@ def run_race(drivers: list[Driver], track: Track, vehicle: VehicleParams, laps: 
     lap_start = np.zeros(n)
     finished = np.zeros(n, dtype=bool)
     clock, poses, clocks = 0.0, [sim.poses().copy()], [0.0]
+    stopped = False
     while not finished.all() and clock < max_time:
+        if should_stop is not None and should_stop():
+            stopped = True
+            break
         racing = np.flatnonzero(~finished)
         steer, speed = np.zeros(n), np.zeros(n)
         for i in racing[hold[racing] <= 0]:
@@ -148,7 +156,7 @@ def run_race(drivers: list[Driver], track: Track, vehicle: VehicleParams, laps: 
     ranked = [results[i] for i in order]
     for position, r in enumerate(ranked, start=1):
         r.position = position
-    return RaceResult(track, ranked, np.stack(poses), np.array(clocks))
+    return RaceResult(track, ranked, np.stack(poses), np.array(clocks), stopped)
 
 
 def _overlapping(sim: Simulator) -> np.ndarray:

@@ -7,7 +7,10 @@ with :func:`laplab.evaluate.race.run_race`, and the race is written into a folde
     race.json     the racers in finishing order (laps, times, lap times, crashes, off-tracks,
                   penalty seconds, position), the models in their driving order, laps, track, duration
     topdown.png   the race's end from above: every car (car i in colour i of the models' order) and its path
-    race.mp4      with ``video``: the race's top-down view, step by step
+    race.mp4      with ``video``: the race's top-down view, step by step (not for a stopped race)
+
+A race stopped early (``should_stop``, the console's Stop) writes race.json (``"stopped": true``, the
+cars ranked where they were) and the picture of the race so far, and no video, so that it ends promptly.
 
 :func:`model_cars` reads every model's car from its ``laplab.json`` without loading a network (what
 the console checks before it queues a race).
@@ -16,6 +19,7 @@ the console checks before it queues a race).
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 from laplab.errors import UserError
@@ -35,13 +39,15 @@ def model_cars(names: list[str], models_dir: Path | None = None) -> list[str]:
     return cars
 
 
-def run_model_race(request: RaceRequest, folder: Path, names: list[str] | None = None):
+def run_model_race(request: RaceRequest, folder: Path, names: list[str] | None = None,
+                   should_stop: Callable[[], bool] | None = None):
     """Race ``request.models`` and write the race into ``folder`` (see the module docstring).
 
     ``names``: how the racers are called in messages and in ``race.json`` (default: the model names;
     the console passes the names its user knows them by). Returns the
     :class:`~laplab.evaluate.race.RaceResult`. A missing model, a missing checkpoint or different cars
-    raise a :class:`~laplab.errors.UserError` before anything is written."""
+    raise a :class:`~laplab.errors.UserError` before anything is written. ``should_stop`` (asked once
+    a simulated step) ends the race early (see the module docstring)."""
     from laplab.evaluate.race import Driver, check_same_car, race_picture, run_race
     from laplab.track.registry import load_track
     from laplab.train.policy import load_model_policy
@@ -58,13 +64,14 @@ def run_model_race(request: RaceRequest, folder: Path, names: list[str] | None =
     home = policies[0].config
     track = load_track(request.track) if request.track else load_track(home.track, reverse=home.reverse)
     drivers = [Driver(name, lambda obs, p=p: p.act(obs), p.spec, p.config.car) for name, p in zip(names, policies)]
-    result = run_race(drivers, track, vehicle_preset(home.car), laps=request.laps, max_time=request.max_time_s)
+    result = run_race(drivers, track, vehicle_preset(home.car), laps=request.laps, max_time=request.max_time_s,
+                      should_stop=should_stop)
     folder.mkdir(parents=True, exist_ok=True)
     from PIL import Image
     Image.fromarray(race_picture(result, names)).save(folder / PICTURE_FILE)
     document = {**result.to_dict(), "models": names, "laps": request.laps, "max_time_s": request.max_time_s,
                 "checkpoint": request.checkpoint, "car": home.car, "picture": PICTURE_FILE, "video": None}
-    if request.video:
+    if request.video and not result.stopped:
         document["video"] = write_race_video(folder / VIDEO_FILE, result).name
     temporary = folder / (RACE_FILE + ".tmp")
     temporary.write_text(json.dumps(document, indent=2))

@@ -92,7 +92,7 @@ def build_car_graph(name: str, checkpoint: str = "best", allowed: tuple[str, ...
     graph against the torch policy (TensorFlow vs torch on 16 random observations)."""
     from laplab.agents.onnx_export import random_observations
     from laplab.agents.networks import ActorCritic
-    from laplab.export.policy_layers import policy_layers, reference_output, value_layers
+    from laplab.export.policy_layers import graph_reference_output, policy_layers, value_layers
     from laplab.export.tensorflow_graph import FrozenGraph, graph_bytes, graph_feed, output_node_name
     from laplab.train.policy import load_model_policy
 
@@ -105,7 +105,7 @@ def build_car_graph(name: str, checkpoint: str = "best", allowed: tuple[str, ...
     observations = random_observations(policy.observation_space, PARITY_SAMPLES, seed=0)
     graph = FrozenGraph(data, output_node_name(layers.algorithm))
     error = float(np.max(np.abs(graph.run(graph_feed(layers, observations))
-                                - reference_output(policy.network, observations))))
+                                - graph_reference_output(policy.network, observations))))
     if not error <= PARITY_TOLERANCE:
         raise CarExportError(f"the TensorFlow graph of {name!r} differs from the torch policy by {error:.3g} "
                              f"(> {PARITY_TOLERANCE}); nothing was written. Please report this as a bug.")

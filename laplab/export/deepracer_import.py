@@ -291,9 +291,9 @@ def load_weights(layout: DeepRacerLayout, config, source: str, notes: list[str])
         learner = build_learner(config, config.seed, precision="float32")
         network, space, policy, value = _templates(learner, config)
         expected = expected_variables(policy, None if constants is not None else value)
-        if constants is not None:  # a frozen graph: the rescaler may be folded out, SAC's log-std pruned
+        if constants is not None:  # a frozen graph: the rescaler may be folded out, the log-std pruned
             value = None
-            optional = (RESCALER, "policy_log_std/kernel", "policy_log_std/bias",
+            optional = (RESCALER, "policy_log_std/kernel", "policy_log_std/bias", "ppo_head_0/policy_log_std",
                         f"dense_{len(policy.head_hidden)}/kernel", f"dense_{len(policy.head_hidden)}/bias")
             expected = {name: shape for name, shape in expected.items()
                         if not name.endswith(optional) or name in found}

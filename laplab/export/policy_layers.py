@@ -55,7 +55,8 @@ class PolicyLayers:
     """The greedy policy: branches (concatenated in this order), middleware, head, output.
 
     ``output``: ``softmax`` (PPO discrete: action probabilities), ``identity`` (PPO continuous: the
-    Gaussian mean, unclipped; a value network: V) or ``tanh`` (SAC: tanh of the mean). ``algorithm``:
+    Gaussian mean, unclipped; a value network: V) or ``tanh`` (SAC: laplab's action is tanh of the
+    mean; the car's graph outputs the mean itself, as DeepRacer's does). ``algorithm``:
     clipped_ppo or sac. The exploration noise, which the greedy policy does not use but a checkpoint
     keeps: ``log_std`` (PPO continuous: the state-independent log-std, (A,)) or ``log_std_head``
     (SAC: the layer giving the log-std from the features). ``head_hidden``: SAC's relu layers between
@@ -170,13 +171,28 @@ def _trunk_layers(trunk: Any, observation_space: Any, sensors: Sequence[str]) ->
 
 
 def reference_output(network: Any, observations: Any, raw: bool = True) -> np.ndarray:
-    """What the graph must reproduce, through the network's own torch forward, for laplab
-    observations (numpy, channels-first cameras): PPO discrete probabilities (B, A); PPO continuous
-    the Gaussian mean (B, 2) (``raw``; else clipped to [-1, 1] as laplab drives); SAC tanh(mean)."""
+    """laplab's greedy policy through the network's own torch forward, for laplab observations
+    (numpy, channels-first cameras): PPO discrete probabilities (B, A); PPO continuous the Gaussian
+    mean (B, 2) (``raw``; else clipped to [-1, 1] as laplab drives); SAC tanh(mean)."""
     from laplab.agents.networks import observation_to_tensor
     from laplab.agents.onnx_export import torch_policy_output
 
     return torch_policy_output(network, observation_to_tensor(observations, "cpu"), raw=raw)
+
+
+def graph_reference_output(network: Any, observations: Any) -> np.ndarray:
+    """What the car's ``model.pb`` output node must hold, through torch: :func:`reference_output`
+    (raw), except SAC's, which is the Gaussian mean before tanh (B, A), as deepracer-simapp freezes it."""
+    from laplab.agents.sac_networks import SquashedGaussianActor
+
+    if not isinstance(network, SquashedGaussianActor):
+        return reference_output(network, observations)
+    import torch
+
+    from laplab.agents.networks import observation_to_tensor
+    with torch.no_grad():
+        features = network.trunk(observation_to_tensor(observations, "cpu"))
+        return network.mean(network.head(features)).numpy()
 
 
 def _set_dense(sequential: Any, layers: Sequence[Dense]) -> None:

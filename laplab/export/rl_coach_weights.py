@@ -119,8 +119,9 @@ def network_layers(template: PolicyLayers, variables: Mapping[str, np.ndarray], 
         layer = f"{scope}/{head}/output"
     else:
         layer = f"{scope}/{head}/{'policy_fc' if template.output == 'softmax' else 'policy_mean'}"
-        if template.log_std is not None:
-            log_std = take(f"{scope}/{head}/policy_log_std").reshape(-1)
+        if template.log_std is not None:  # (a frozen graph has none: the template's stays)
+            name = f"{scope}/{head}/policy_log_std"
+            log_std = take(name).reshape(-1) if name in variables else template.log_std
     head_layer = Dense(take(f"{layer}/kernel")[head_rows], take(f"{layer}/bias"), "none")
     return PolicyLayers(template.algorithm, tuple(branches), tuple(middleware), head_layer, template.output,
                         log_std, log_std_head, tuple(head_hidden))

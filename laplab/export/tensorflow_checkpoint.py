@@ -146,12 +146,17 @@ def rl_coach_variables(policy: PolicyLayers, value: PolicyLayers | None = None) 
 
 class CheckpointGraph:
     """rl_coach's networks as a TF1 graph of variables (shapes from ``policy`` / ``value``), with
-    DeepRacer's input placeholders; ``outputs`` = the policy's output (as the frozen ``model.pb``)
-    and, for PPO with a value network, V (B,). ``restore(prefix)`` reads a checkpoint by name."""
+    DeepRacer's input placeholders (``input_names`` maps a sensor to another node name, e.g. the old
+    ``observation/observation``); ``output`` = the node DeepRacer freezes (``model.pb``'s output:
+    PPO's softmax or Gaussian mean, SAC's mean before tanh, as rl_coach's heads name ``policy``) and,
+    for PPO with a value network, V (B,). ``restore(prefix)`` reads a checkpoint by name."""
 
-    def __init__(self, policy: PolicyLayers, value: PolicyLayers | None = None):
+    def __init__(self, policy: PolicyLayers, value: PolicyLayers | None = None,
+                 input_names: Mapping[str, str] | None = None):
         tf = _import_tensorflow()
         self.policy, self.value = policy, value
+        self.input_nodes = {branch.sensor: (input_names or {}).get(branch.sensor)
+                            or input_node_name(branch.sensor, policy.algorithm) for branch in policy.branches}
         shapes = rl_coach_variables(policy, value)
         self.graph = tf.Graph()
         with self.graph.as_default():
@@ -160,15 +165,18 @@ class CheckpointGraph:
                               for name, array in shapes.items()}
             self.inputs = {}
             for branch in policy.branches:
-                name = input_node_name(branch.sensor, policy.algorithm)
+                name = self.input_nodes[branch.sensor]
                 self.inputs[branch.sensor] = tf.compat.v1.placeholder(tf.float32, [None, *branch.shape], name=name)
+                if self.inputs[branch.sensor].op.name != name:
+                    raise ValueError(f"input node {name!r} came out as {self.inputs[branch.sensor].op.name!r}")
             root = NETWORK_SCOPE[policy.algorithm]
             if policy.algorithm == "sac":
                 features = self._trunk(tf, policy, f"{root}/network_0")
                 for name in sac_head_names(len(policy.head_hidden))[0]:
                     features = self._dense(tf, features, f"{root}/network_0/sac_policy_head_0/{name}", "relu")
                 mean = self._dense(tf, features, f"{root}/network_0/sac_policy_head_0/policy_mean", "none")
-                self.output = tf.nn.tanh(mean, name=f"{root}/network_0/sac_policy_head_0/policy")
+                # deepracer-simapp's SACPolicyHead: policy = identity(mean), the tanh comes after it
+                self.output = tf.identity(mean, name=f"{root}/network_0/sac_policy_head_0/policy")
             else:
                 features = self._trunk(tf, policy, f"{root}/network_1")
                 layer = "policy_fc" if policy.output == "softmax" else "policy_mean"
@@ -236,7 +244,7 @@ class CheckpointGraph:
         return self.session.run(self.value_output, self._feed(feed))
 
     def _feed(self, feed: Mapping[str, np.ndarray]) -> dict:
-        by_node = {input_node_name(sensor, self.policy.algorithm): tensor for sensor, tensor in self.inputs.items()}
+        by_node = {self.input_nodes[sensor]: tensor for sensor, tensor in self.inputs.items()}
         return {by_node[name]: value for name, value in feed.items()}
 
 

@@ -1,4 +1,4 @@
-"""A TensorFlow frozen graph (``model.pb``) of a laplab policy, with the node names DeepRacer's car uses.
+"""A TensorFlow frozen graph (``model.pb``) of a laplab policy, frozen as DeepRacer freezes its own.
 
 The car's software finds the graph's nodes by name (see docs/car.md for the sources):
 
@@ -9,19 +9,25 @@ The car's software finds the graph's nodes by name (see docs/car.md for the sour
   embedder does;
 - output ``main_level/agent/main/online/network_1/ppo_head_0/policy`` (PPO: softmax probabilities,
   or the Gaussian mean for a continuous action space) or
-  ``main_level/agent/policy/online/network_0/sac_policy_head_0/policy`` (SAC: tanh of the mean),
-  the names deepracer-simapp freezes (``markov/boto/s3/constants.py``).
+  ``main_level/agent/policy/online/network_0/sac_policy_head_0/policy`` (SAC: the Gaussian mean
+  **before** tanh, as deepracer-simapp's ``SACPolicyHead`` names ``identity(mean)``), the names
+  deepracer-simapp freezes (``markov/boto/s3/constants.py``). The car clips a continuous output to
+  [-1, 1] (aws-deepracer-navigation-pkg), so it drives a laplab SAC model as it drives DeepRacer's.
 
-Built with ``tf.compat.v1`` ops on constants only (nothing to freeze); needs ``tensorflow-cpu``.
+The graph is rl_coach's network (:class:`laplab.export.tensorflow_checkpoint.CheckpointGraph`, the
+variables named as in DeepRacer's checkpoints) frozen with ``convert_variables_to_constants``, as
+deepracer-simapp freezes it: its ``Const`` nodes carry rl_coach's variable names, so laplab's import
+(``frozen_graph_weights``) reads a laplab ``model.pb`` as it reads DeepRacer's. Needs ``tensorflow-cpu``.
 """
 
 from __future__ import annotations
 
+import contextlib
 from typing import Any, Mapping
 
 import numpy as np
 
-from laplab.export.policy_layers import Dense, PolicyLayers, SensorBranch
+from laplab.export.policy_layers import PolicyLayers
 
 HEAD_SCOPE = {"clipped_ppo": "main", "sac": "policy"}
 OUTPUT_NODE = {"clipped_ppo": "main_level/agent/main/online/network_1/ppo_head_0/policy",
@@ -47,70 +53,33 @@ def _import_tensorflow():
     return tf
 
 
-def _dense(tf, x, layer: Dense, name: str):
-    x = tf.nn.bias_add(tf.matmul(x, tf.constant(layer.kernel, name=f"{name}/kernel")),
-                       tf.constant(layer.bias, name=f"{name}/bias"), name=f"{name}/BiasAdd")
-    if layer.activation == "relu":
-        return tf.nn.relu(x, name=f"{name}/Relu")
-    if layer.activation == "tanh":
-        return tf.nn.tanh(x, name=f"{name}/Tanh")
-    return x
-
-
-def _branch(tf, placeholder, branch: SensorBranch, scope: str):
-    x = placeholder
-    if branch.is_camera:
-        x = tf.multiply(x, tf.constant(np.float32(branch.scale)), name=f"{scope}/rescale")
-        for index, conv in enumerate(branch.convs):
-            x = tf.nn.conv2d(x, tf.constant(conv.kernel, name=f"{scope}/Conv2d_{index}/kernel"),
-                             strides=[1, conv.stride, conv.stride, 1], padding="VALID", name=f"{scope}/Conv2d_{index}")
-            x = tf.nn.relu(tf.nn.bias_add(x, tf.constant(conv.bias, name=f"{scope}/Conv2d_{index}/bias")),
-                           name=f"{scope}/Conv2d_{index}/Relu")
-        # laplab flattens channels-first (C, H, W): transpose back before flattening
-        x = tf.transpose(x, [0, 3, 1, 2], name=f"{scope}/to_channels_first")
-        features = int(np.prod(x.shape[1:]))
-        x = tf.reshape(x, [-1, features], name=f"{scope}/Flatten")
-    for index, layer in enumerate(branch.dense):
-        x = _dense(tf, x, layer, f"{scope}/Dense_{index}")
-    return x
+def _quiet_deprecations():
+    """TensorFlow's context that keeps its TF1 deprecation notices off the export's output."""
+    try:
+        from tensorflow.python.util.deprecation import silence
+    except ImportError:  # another TensorFlow layout: the notices show, nothing else changes
+        return contextlib.nullcontext()
+    return silence()
 
 
 def build_graph_def(layers: PolicyLayers, input_names: Mapping[str, str] | None = None) -> Any:
-    """The frozen ``tf.compat.v1.GraphDef`` of ``layers``. ``input_names`` maps a sensor to another
-    input node name (e.g. ``observation/observation`` style names); by default DeepRacer's."""
+    """The frozen ``tf.compat.v1.GraphDef`` of ``layers``: rl_coach's policy network with laplab's
+    weights, its variables turned into constants of the same names. ``input_names`` maps a sensor to
+    another input node name (e.g. ``observation/observation`` style names); by default DeepRacer's."""
+    from laplab.export.tensorflow_checkpoint import CheckpointGraph, rl_coach_variables
+
     tf = _import_tensorflow()
-    algorithm = layers.algorithm
-    head_scope = HEAD_SCOPE[algorithm]
-    network = "network_1" if algorithm == "clipped_ppo" else "network_0"
-    body = f"main_level/agent/{head_scope}/online/{network}"
-    graph = tf.Graph()
-    with graph.as_default():
-        features = []
-        for branch in layers.branches:
-            name = (input_names or {}).get(branch.sensor) or input_node_name(branch.sensor, algorithm)
-            scope, leaf = name.rsplit("/", 1) if "/" in name else ("", name)
-            with tf.name_scope(f"{scope}/" if scope else None):
-                placeholder = tf.compat.v1.placeholder(tf.float32, [None, *branch.shape], name=leaf)
-            if placeholder.op.name != name:
-                raise ValueError(f"input node {name!r} came out as {placeholder.op.name!r}")
-            features.append(_branch(tf, placeholder, branch, f"{body}/{branch.sensor}"))
-        x = features[0] if len(features) == 1 else tf.concat(features, axis=1, name=f"{body}/concat")
-        for index, layer in enumerate(layers.middleware):
-            x = _dense(tf, x, layer, f"{body}/middleware_fc_embedder/Dense_{index}")
-        head_name = "ppo_head_0" if algorithm == "clipped_ppo" else "sac_policy_head_0"
-        for index, layer in enumerate(layers.head_hidden):  # SAC: deepracer-simapp's dense 256
-            x = _dense(tf, x, layer, f"{body}/{head_name}/dense" + (f"_{index}" if index else ""))
-        x = _dense(tf, x, layers.head, f"{body}/{head_name}/policy_fc")
-        output = output_node_name(algorithm)
-        if layers.output == "softmax":
-            result = tf.nn.softmax(x, name=output)
-        elif layers.output == "tanh":
-            result = tf.nn.tanh(x, name=output)
-        else:
-            result = tf.identity(x, name=output)
-        if result.op.name != output:
-            raise ValueError(f"output node {output!r} came out as {result.op.name!r}")
-    return graph.as_graph_def()
+    network = CheckpointGraph(layers, None, input_names)
+    try:
+        network.load(rl_coach_variables(layers))
+        output = output_node_name(layers.algorithm)
+        if network.output.op.name != output:
+            raise ValueError(f"output node {output!r} came out as {network.output.op.name!r}")
+        with network.graph.as_default(), _quiet_deprecations():
+            return tf.compat.v1.graph_util.convert_variables_to_constants(
+                network.session, network.graph.as_graph_def(), [output])
+    finally:
+        network.session.close()
 
 
 def graph_bytes(layers: PolicyLayers, input_names: Mapping[str, str] | None = None) -> bytes:

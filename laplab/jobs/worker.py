@@ -5,7 +5,7 @@ The worker reads ``spec.json`` from its folder, runs the job with laplab's libra
 only through files there (it cannot reach the database): ``events.jsonl`` gets one line per
 iteration, ``poses.json`` the cars' poses at most 15 times a second, ``result.json`` the outcome.
 A ``stop`` file in the folder (or SIGTERM) stops a training after the current step and keeps the
-model, as Ctrl-C does on the CLI.
+model, as Ctrl-C does on the CLI; it ends a race within a simulated step, keeping the race so far.
 """
 
 from __future__ import annotations
@@ -206,15 +206,18 @@ def _evaluate(files: JobFiles, spec: dict) -> None:
 
 def _duel(files: JobFiles, spec: dict) -> None:
     """A head-to-model race (:class:`~laplab.train.request.RaceRequest`), the same code as ``laplab
-    race``: its race.json, top-down picture (and video) go to the job folder's ``race/``."""
+    race``: its race.json, top-down picture (and video) go to the job folder's ``race/``. The stop
+    file (or SIGTERM) ends the race within a simulated step: it finishes ``done`` with
+    ``stop_reason`` ``stopped`` and the race as far as it went (race.json, picture; no video)."""
     from laplab.evaluate.race_run import run_model_race
     from laplab.train.request import RaceRequest
     request = RaceRequest.from_mapping(spec["params"])
     if request.models[0] != spec["model"]:
         raise ValueError(f"a race job of {spec['model']!r} races {request.models[0]!r} first")
     files.event("started", models=list(request.models))
-    result = run_model_race(request, files.folder / "race")
-    files.finish("done", order=[r.name for r in result.racers], duration=float(result.clock[-1]))
+    result = run_model_race(request, files.folder / "race", should_stop=files.should_stop)
+    files.finish("done", order=[r.name for r in result.racers], duration=float(result.clock[-1]),
+                 stop_reason="stopped" if result.stopped else None)
 
 
 EXPORT_FORMATS = ("car", "console")

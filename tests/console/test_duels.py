@@ -4,6 +4,7 @@ alike whether it exists or not; an opponent on another physics version is refuse
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import replace
 
@@ -68,6 +69,30 @@ def test_a_racer_races_two_own_models_and_sees_both_cars(console, racers):
     # the other racer learns nothing of it: the model does not exist for them, nor does its race
     assert bob.get(f"/api/models/alpha/duels/{race['id']}").status_code == 404
     assert bob.get(f"/api/models/alpha/duels/{race['id']}/picture").status_code == 404
+
+
+def test_stop_ends_a_running_race_promptly_and_keeps_it_so_far(console, racers):
+    """Stop on the model page ends the race within a step (not at its 10 simulated minutes): the race
+    is done, marked stopped, with its racers and picture as far as it went."""
+    from laplab.jobs.runner import job_folder
+    ann = racers[0]
+    started = ann.post("/api/models/alpha/duels", json={"opponent": "bravo", "track": "oval", "max_time_s": 600})
+    assert started.status_code == 202, started.text
+    job_id = started.json()["id"]
+    deadline = time.monotonic() + 120
+    while "started" not in ((job_folder(job_id) / "events.jsonl").read_text()
+                            if (job_folder(job_id) / "events.jsonl").exists() else ""):
+        assert time.monotonic() < deadline, ann.get(f"/api/models/alpha/duels/{job_id}").json()
+        time.sleep(0.2)
+    time.sleep(1.0)  # the cars are on the track (or the policies still load: the race stops at its first step)
+    stopped_at = time.monotonic()
+    assert ann.post("/api/models/alpha/stop").status_code == 200
+    race = wait_duel(ann, "alpha", job_id, timeout_s=60)
+    assert time.monotonic() - stopped_at < 30
+    assert race["status"] == "done" and race["stopped"] is True, race
+    assert race["duration"] < 600 and sorted(r["position"] for r in race["racers"]) == [1, 2]
+    assert ann.get(race["picture"]).status_code == 200
+    assert json.loads((job_folder(job_id) / "race" / "race.json").read_text())["stopped"] is True
 
 
 def test_another_users_model_is_refused_with_the_rule_whether_it_exists_or_not(console, racers):

@@ -59,6 +59,21 @@ def test_cars_that_meet_crash_and_are_put_back(wide_track):
     assert all(r.penalty_time >= 5.0 * r.crash_count for r in result.racers)
 
 
+def test_a_stopped_race_ends_at_the_step_it_is_asked_and_ranks_the_cars_so_far(wide_track):
+    asked = []
+
+    def stop_after_30_steps() -> bool:
+        asked.append(1)
+        return len(asked) > 30
+
+    drivers = [Driver("slow", state_driver(1.0, True), SPEC), Driver("fast", state_driver(1.6, True), SPEC)]
+    result = run_race(drivers, wide_track, CLASSIC, laps=1, max_time=60.0, should_stop=stop_after_30_steps)
+    assert result.stopped and result.to_dict()["stopped"] is True
+    assert len(result.clock) == 31 and result.clock[-1] == pytest.approx(30 * (result.clock[1] - result.clock[0]))
+    assert [r.name for r in result.racers] == ["fast", "slow"] and all(r.finish_time is None for r in result.racers)
+    assert not run_race(drivers, wide_track, CLASSIC, laps=1, max_time=1.0).stopped
+
+
 def test_opponent_on_another_car_is_refused():
     check_same_car(["a", "b"], ["deepracer-v6", "deepracer-v6"])
     with pytest.raises(RaceTypeError, match="opponent 'b' drives deepracer-v4") as error:

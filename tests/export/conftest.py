@@ -14,7 +14,8 @@ import pytest
 class BuiltCase:
     """One case: the torch ``model`` and its observation ``space``, laplab's ``layers``, the frozen
     graph (``graph_path``, model.pb), ``observations`` (SAMPLES of them) and the torch policy's
-    ``expected`` outputs on them, (SAMPLES, actions); :meth:`frozen` loads the graph in TensorFlow."""
+    ``expected`` outputs on them, (SAMPLES, actions), as the graph's output node holds them (SAC:
+    the mean before tanh); :meth:`frozen` loads the graph in TensorFlow."""
 
     model: object
     space: object
@@ -37,7 +38,7 @@ class BuiltCase:
 def built_case(tmp_path_factory):
     """``built_case(case) -> BuiltCase``, built on first use and kept for the session."""
     from export_networks import SAMPLES, make_network, varied_observations
-    from laplab.export.policy_layers import policy_layers, reference_output
+    from laplab.export.policy_layers import graph_reference_output, policy_layers
     from laplab.export.tensorflow_graph import graph_bytes
 
     cache: dict = {}
@@ -49,7 +50,8 @@ def built_case(tmp_path_factory):
             path = tmp_path_factory.mktemp("graphs") / "model.pb"
             path.write_bytes(graph_bytes(layers))
             observations = varied_observations(space, SAMPLES, seed=11)
-            cache[case] = BuiltCase(model, space, layers, path, observations, reference_output(model, observations))
+            cache[case] = BuiltCase(model, space, layers, path, observations,
+                                   graph_reference_output(model, observations))
         return cache[case]
     return get
 

@@ -82,3 +82,14 @@ def make_network(sensors, network, algorithm, kind):
         head.bias.normal_(0.0, 0.2)
         head.bias.sub_(head.weight @ features.mean(dim=0))  # centre the outputs (continuous: inside [-1, 1])
     return model.eval(), space
+
+
+def float32_tolerance(layers, outputs: np.ndarray) -> float:
+    """How far two float32 evaluations of one network may differ (TensorFlow's and torch's kernels sum in
+    other orders, and hosts with AVX512-BF16 differ again): each layer's sums of fan-in terms round like a
+    random walk, eps * sqrt(fan-in), and the layers' errors add up, on the outputs' scale (2.2e-5 for the
+    camera networks; the DEEP one differed by 1.2e-5 on an AVX512-BF16 host). Never below 1e-5."""
+    weights = [w for branch in layers.branches for w in (*branch.convs, *branch.dense)]
+    weights += [*layers.middleware, *layers.head_hidden, layers.head]
+    walk = sum(np.sqrt(np.prod(w.kernel.shape[:-1])) for w in weights)
+    return max(1e-5, float(np.finfo(np.float32).eps) * float(walk) * max(float(np.abs(outputs).max()), 1.0))

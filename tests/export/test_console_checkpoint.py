@@ -13,7 +13,7 @@ pytest.importorskip("torch", reason="the checkpoint is built from laplab's torch
 tf = pytest.importorskip("tensorflow", reason="the checkpoint needs tensorflow-cpu: pip install 'laplab[deepracer]'")
 
 import torch  # noqa: E402
-from export_networks import CASES, DEEP, SHALLOW, case_id  # noqa: E402
+from export_networks import CASES, DEEP, SHALLOW, case_id, float32_tolerance  # noqa: E402
 
 from laplab.agents.networks import observation_to_tensor  # noqa: E402
 from laplab.export.policy_layers import value_layers  # noqa: E402
@@ -22,18 +22,6 @@ from laplab.export.tensorflow_checkpoint import (channels_last_rows, checkpoint_
 from laplab.export.tensorflow_graph import graph_feed, output_node_name  # noqa: E402
 
 PREFIX = "7_Step-2345.ckpt"
-EPS32 = float(np.finfo(np.float32).eps)
-
-
-def float32_tolerance(layers, outputs: np.ndarray) -> float:
-    """How far two float32 evaluations of one network may differ (TensorFlow's and torch's kernels sum in
-    other orders, and hosts with AVX512-BF16 differ again): each layer's sums of fan-in terms round like a
-    random walk, eps * sqrt(fan-in), and the layers' errors add up, on the outputs' scale (2.2e-5 for the
-    camera networks; the DEEP one differed by 1.2e-5 on an AVX512-BF16 host). Never below 1e-5."""
-    weights = [w for branch in layers.branches for w in (*branch.convs, *branch.dense)]
-    weights += [*layers.middleware, layers.head]
-    walk = sum(np.sqrt(np.prod(w.kernel.shape[:-1])) for w in weights)
-    return max(1e-5, EPS32 * float(walk) * max(float(np.abs(outputs).max()), 1.0))
 # camera + lidar, the three camera networks, PPO discrete / continuous and SAC
 CHECKPOINT_CASES = [CASES[0], CASES[2], CASES[3], CASES[4], CASES[7], CASES[8]]
 PPO_ROOT = "main_level/agent/main/online"

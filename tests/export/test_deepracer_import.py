@@ -116,6 +116,26 @@ def frozen_rl_coach_graph(folder: Path, layers, out: Path) -> None:
     out.write_bytes(frozen.SerializeToString())
 
 
+@pytest.mark.parametrize("name", list(MODELS))
+def test_laplabs_car_model_pb_imports_back_as_the_same_policy(home, name, tmp_path):
+    """The car's model.pb of a laplab model (the console export's model_0.pb is the same file) imports
+    with the policy weight for weight: its constants carry rl_coach's names, as DeepRacer's do. A
+    model.pb has neither value network nor exploration noise (the freeze drops them)."""
+    car = tmp_path / "car"
+    car.mkdir()
+    shutil.copy(home[name] / "model" / "model_0.pb", car / "model.pb")
+    shutil.copy(home[name] / "model_metadata.json", car / "model_metadata.json")
+    assert not import_deepracer_model(car / "model.pb", f"{name}-pb").trainable
+    a, b = load_model_policy(name), load_model_policy(f"{name}-pb")
+    sa, sb = a.network.state_dict(), b.network.state_dict()
+    compared = [k for k in sa if not k.startswith(("value_trunk", "value_head")) and "log_std" not in k]
+    assert compared and not [k for k in compared if not torch.equal(sa[k], sb[k])]
+    frames = varied_observations(a.observation_space, 32, seed=5)
+    expected = reference_output(a.network, frames)
+    assert np.ptp(expected, axis=0).max() > 1e-2
+    assert np.abs(reference_output(b.network, frames) - expected).max() <= 1e-5
+
+
 def test_bare_model_pb_evaluates_but_refuses_clone_and_resume(home, tmp_path):
     from laplab.export.policy_layers import policy_layers
     from laplab.train.jobs import clone_config, resume_training

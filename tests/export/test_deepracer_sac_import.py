@@ -206,6 +206,32 @@ def test_simapp_sac_model_pb_imports_its_policy(home, simapp, tmp_path):
     assert np.abs(reference_output(policy.network, frames) - expected).max() <= float32_rounding(policy, expected)
 
 
+def test_car_graph_of_an_imported_simapp_sac_is_the_simapps_model_pb(home, simapp, tmp_path):
+    """laplab's car export of a DeepRacer SAC model holds what DeepRacer's own model.pb holds under
+    sac_policy_head_0/policy: the mean before tanh (the car clips it to [-1, 1]), not laplab's tanh."""
+    from laplab.export.car import build_car_graph
+    from laplab.export.tensorflow_graph import FrozenGraph, graph_feed, output_node_name
+    folder, _, run = simapp
+    import_deepracer_model(folder, "sac-simapp")
+    policy = load_model_policy("sac-simapp")
+    frames = varied_observations(policy.observation_space, FRAMES, seed=3)
+    simapp_graph = FrozenGraph((folder / "model" / "model.pb").read_bytes(), output_node_name("sac"))
+    simapp_node = simapp_graph.run({"frames": np.transpose(frames, (0, 2, 3, 1)).astype(np.float64)})
+    assert np.abs(np.tanh(simapp_node) - run(np.transpose(frames, (0, 2, 3, 1)).astype(np.float64))).max() < 1e-12
+    car = build_car_graph("sac-simapp")
+    got = FrozenGraph(car.data, output_node_name("sac")).run(graph_feed(car.layers, frames))
+    tolerance = 10 * float32_rounding(policy, simapp_node)  # TensorFlow's float32 kernels round more than torch's
+    assert np.abs(got - simapp_node).max() <= tolerance
+    assert np.abs(np.tanh(got) - simapp_node).max() > 5 * tolerance  # a tanh'd node (laplab before) fails
+    (tmp_path / "car").mkdir()  # and that model.pb imports back as the same policy
+    (tmp_path / "car" / "model.pb").write_bytes(car.data)
+    (tmp_path / "car" / "model_metadata.json").write_text(json.dumps(METADATA))
+    import_deepracer_model(tmp_path / "car" / "model.pb", "sac-car-again")
+    again = load_model_policy("sac-car-again")
+    assert again.config.policy_head_layers == (256,)
+    assert np.abs(reference_output(again.network, frames) - reference_output(policy.network, frames)).max() <= 1e-6
+
+
 def test_imported_simapp_sac_exports_and_imports_back(home, simapp, tmp_path):
     from laplab.export.console import export_console
     import_deepracer_model(simapp[0], "sac-simapp")

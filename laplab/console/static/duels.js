@@ -50,7 +50,7 @@ const Duels = (() => {
       const list = await api("GET", `${base}/duels`);
       $("#duels").replaceChildren(...list.slice().reverse().map(race => el("div", {class: "evaluation duel", "data-duel": race.id, "data-status": race.status},
         el("h3", {}, `Race ${race.id}: `, ...race.models.map((m, i) => el("span", {style: `color:${race.colours[i]}`}, i ? ` vs ${m}` : m)),
-          ` · ${race.status}`, race.track ? ` · ${race.track}` : "", race.laps ? ` · ${race.laps} lap${race.laps > 1 ? "s" : ""}` : ""),
+          ` · ${race.stopped ? `stopped${race.duration !== null ? ` after ${secs(race.duration)}` : ""}` : race.status}`, race.track ? ` · ${race.track}` : "", race.laps ? ` · ${race.laps} lap${race.laps > 1 ? "s" : ""}` : ""),
         race.error ? el("p", {class: "field-error"}, race.error) : "",
         race.racers.length ? el("table", {class: "grid compact"},
           el("thead", {}, el("tr", {}, ...["Position", "Model", "Laps", "Finish time", "Lap times", "Crashes", "Off-track", "Penalty"].map((h, i) => el("th", {class: i > 1 ? "num" : ""}, h)))),
