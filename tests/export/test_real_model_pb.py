@@ -3,7 +3,8 @@
 The model is third-party and never in this repository: ``LAPLAB_REAL_MODEL_PB`` names the file
 (e.g. deepracer-utils' test model ``tests/deepracer/model/sample-model/model/model_48.pb``, a
 front-camera clipped-PPO model of 12 discrete actions, with its ``model_metadata.json`` in the same
-folder); the tests skip without it. Checked: the import reads every weight from the graph's
+folder); without it, the copy `.ci/run` fetches from deepracer-utils' sdist on PyPI into
+``~/.cache/laplab-test-data``; the tests skip when neither is there. Checked: the import reads every weight from the graph's
 constants, laplab's network gives the graph's own action probabilities (TensorFlow runs the graph),
 and the imported model completes a lap in laplab's simulator."""
 
@@ -17,7 +18,10 @@ import pytest
 
 pytest.importorskip("torch", reason="the import writes a laplab (torch) checkpoint")
 
-REAL_PB = Path(os.environ.get("LAPLAB_REAL_MODEL_PB", "/nonexistent/model.pb"))
+# .ci/run fetches deepracer-utils' sample model (its sdist on PyPI) into this cache and sets the variable
+CACHED_PB = (Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "laplab-test-data"
+             / "deepracer-utils-1.5.6" / "sample-model" / "model" / "model_48.pb")
+REAL_PB = Path(os.environ.get("LAPLAB_REAL_MODEL_PB") or CACHED_PB)
 pytestmark = pytest.mark.skipif(not REAL_PB.is_file() or not (REAL_PB.parent / "model_metadata.json").is_file(),
                                 reason="set LAPLAB_REAL_MODEL_PB to a DeepRacer model.pb with its model_metadata.json")
 EPS32 = float(np.finfo(np.float32).eps)
