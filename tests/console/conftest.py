@@ -50,6 +50,7 @@ class RunningConsole:
         raise AssertionError(f"{name} did not reach {statuses} within {timeout_s} s: {model}")
 
 
+WARMUP_KERNELS = "warmup-kernels.txt"  # in a seed: the kernels' files the warm-up itself ran (one a line)
 _NUMBA_SEED: dict = {}  # "root": where seeds are kept (pytest's cache folder), "cache": this session's
 
 
@@ -111,15 +112,20 @@ def numba_seed(base) -> Path:
         from laplab.jobs.warmup import READY_MARKER
         root = Path(_NUMBA_SEED.get("root") or base)
         cache = root / f"numba-{_source_stamp()}"
-        if not (cache / READY_MARKER).exists():
+        if not ((cache / READY_MARKER).exists() and (cache / WARMUP_KERNELS).exists()):
             for old in root.glob("numba-*"):
                 shutil.rmtree(old, ignore_errors=True)
             cache.mkdir(parents=True, exist_ok=True)
             copy_in_tree_kernels(cache)
-            env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
-            subprocess.run([sys.executable, "-m", "laplab.jobs.warmup", str(cache)], env=env, check=True,
-                           stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, timeout=900)
+            # numba's cache log names every kernel the warm-up loads from the cache or compiles into it
+            env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "NUMBA_DEBUG_CACHE": "1"}
+            done = subprocess.run([sys.executable, "-m", "laplab.jobs.warmup", str(cache)], env=env, check=True,
+                                  stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=900)
             assert (cache / READY_MARKER).exists()
+            used = sorted({Path(line.split(" from ", 1)[-1].split(" to ", 1)[-1].strip(" '\"")).name
+                           for line in done.stdout.splitlines()
+                           if line.startswith(("[cache] data loaded from", "[cache] data saved to"))})
+            (cache / WARMUP_KERNELS).write_text("\n".join(used) + "\n")
         _NUMBA_SEED["cache"] = cache
     return _NUMBA_SEED["cache"]
 
