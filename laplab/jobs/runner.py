@@ -222,13 +222,15 @@ class LocalProcessRunner:
         return [job_id for job_id, p in self._processes.items() if p.poll() is None]
 
     def shutdown(self, grace_s: float = 5.0) -> None:
-        """Stop every job (a stop request, then SIGKILL after ``grace_s``): each keeps its last checkpoint."""
+        """Stop every job (a stop request, then SIGKILL ``grace_s`` after it): each keeps its last
+        checkpoint. The jobs share the grace period: the server stops within ``grace_s`` however many run."""
         for job_id, process in list(self._processes.items()):
             if process.poll() is None:
                 request_stop(job_id)
+        deadline = time.monotonic() + grace_s
         for job_id, process in list(self._processes.items()):
             try:
-                process.wait(grace_s)
+                process.wait(max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 os.killpg(process.pid, signal.SIGKILL)
                 process.wait()

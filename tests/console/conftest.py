@@ -50,6 +50,7 @@ class RunningConsole:
         raise AssertionError(f"{name} did not reach {statuses} within {timeout_s} s: {model}")
 
 
+WARMUP_KERNELS = "warmup-kernels.txt"  # in a seed: the kernels' files the warm-up itself ran (one a line)
 _NUMBA_SEED: dict = {}  # "root": where seeds are kept (pytest's cache folder), "cache": this session's
 
 
@@ -72,6 +73,30 @@ def _source_stamp() -> str:
     return digest.hexdigest()[:16]
 
 
+def copy_in_tree_kernels(cache: Path) -> int:
+    """Copy the kernels this session's own tests already compiled (numba's in-tree cache,
+    ``laplab/**/__pycache__/*.nbi`` and ``*.nbc``) into ``cache`` in the layout numba uses under
+    ``NUMBA_CACHE_DIR``, so the warm-up compiles only what is missing (about a minute of CPU on 2 cores
+    otherwise). Numba checks every entry against its source file's hash and the machine, as it does its
+    in-tree cache, so a stale entry is compiled again, never used. Returns how many files were copied."""
+    import shutil
+
+    from numba.core.caching import UserProvidedCacheLocator
+
+    import laplab
+    copied = 0
+    for folder in Path(laplab.__file__).parent.rglob("__pycache__"):
+        kernels = [*folder.glob("*.nbi"), *folder.glob("*.nbc")]
+        if not kernels:
+            continue
+        target = cache / UserProvidedCacheLocator.get_suitable_cache_subpath(str(folder.parent / "module.py"))
+        target.mkdir(parents=True, exist_ok=True)
+        for path in kernels:
+            shutil.copy2(path, target / path.name)
+            copied += 1
+    return copied
+
+
 def numba_seed(base) -> Path:
     """A trusted numba cache for the consoles of the tests, made by laplab's own warm-up (as
     ``laplab serve`` makes one per home) once per source version (kept in pytest's cache folder):
@@ -87,14 +112,20 @@ def numba_seed(base) -> Path:
         from laplab.jobs.warmup import READY_MARKER
         root = Path(_NUMBA_SEED.get("root") or base)
         cache = root / f"numba-{_source_stamp()}"
-        if not (cache / READY_MARKER).exists():
+        if not ((cache / READY_MARKER).exists() and (cache / WARMUP_KERNELS).exists()):
             for old in root.glob("numba-*"):
                 shutil.rmtree(old, ignore_errors=True)
             cache.mkdir(parents=True, exist_ok=True)
-            env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
-            subprocess.run([sys.executable, "-m", "laplab.jobs.warmup", str(cache)], env=env, check=True,
-                           stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, timeout=900)
+            copy_in_tree_kernels(cache)
+            # numba's cache log names every kernel the warm-up loads from the cache or compiles into it
+            env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "NUMBA_DEBUG_CACHE": "1"}
+            done = subprocess.run([sys.executable, "-m", "laplab.jobs.warmup", str(cache)], env=env, check=True,
+                                  stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=900)
             assert (cache / READY_MARKER).exists()
+            used = sorted({Path(line.split(" from ", 1)[-1].split(" to ", 1)[-1].strip(" '\"")).name
+                           for line in done.stdout.splitlines()
+                           if line.startswith(("[cache] data loaded from", "[cache] data saved to"))})
+            (cache / WARMUP_KERNELS).write_text("\n".join(used) + "\n")
         _NUMBA_SEED["cache"] = cache
     return _NUMBA_SEED["cache"]
 

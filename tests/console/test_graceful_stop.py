@@ -49,3 +49,22 @@ def test_a_server_stop_interrupts_jobs_and_resume_grants_the_time_left(tmp_path,
         granted = console.app.state.store.job(resumed.json()["job"]["id"]).params["max_time_s"]
         assert abs(granted - left) < 1e-6, (granted, left)  # not the whole budget again
         console.admin.post("/api/models/stopped-by-server/stop")
+
+
+def test_jobs_share_the_grace_period_of_a_server_stop(tmp_path, monkeypatch):
+    """Jobs that ignore the stop request (e.g. still starting up) are killed ``grace_s`` after it, all
+    together: a server with three of them stops in one grace period, not three."""
+    import subprocess
+    import sys
+
+    from laplab.jobs.runner import LocalProcessRunner
+    monkeypatch.setenv("LAPLAB_HOME", str(tmp_path))
+    runner = LocalProcessRunner(sandbox=False)
+    deaf = [subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"], start_new_session=True)
+            for _ in range(3)]
+    runner._processes.update(enumerate(deaf, start=1))
+    started = time.monotonic()
+    runner.shutdown(grace_s=2.0)
+    took = time.monotonic() - started
+    assert all(process.returncode == -9 for process in deaf), [p.returncode for p in deaf]
+    assert 2.0 <= took < 5.0, took  # one by one, they took 3 x 2 s

@@ -11,10 +11,6 @@ from laplab.jobs.confinement import JobLimits, bubblewrap_works
 
 
 TINY = {"num_episodes_between_training": 2, "num_epochs": 3, "batch_size": 32}
-# The validation sweep calls a reward 5,670 times (default action space); a counter lets a function
-# pass validation and misbehave in training.
-SWEEP_CALLS = 5670
-
 pytestmark = pytest.mark.skipif(not bubblewrap_works(), reason="bubblewrap is not usable here (apt-get install bubblewrap)")
 
 
@@ -37,10 +33,14 @@ def spy_reward(paths: list[str]) -> str:
 
 
 def misbehaving_reward(body: str) -> str:
-    return ("CALLS = [0]\n"
+    """A reward that passes validation (its sweep runs in a forked child of the job, multiprocessing's)
+    and runs ``body`` in training, at the job's own process's 21st call."""
+    return ("import multiprocessing\n"
+            "CALLS = [0]\n"
             "def reward_function(params):\n"
-            "    CALLS[0] += 1\n"
-            f"    if CALLS[0] > {SWEEP_CALLS + 20}:\n"
+            "    if multiprocessing.parent_process() is None:\n"
+            "        CALLS[0] += 1\n"
+            "    if CALLS[0] > 20:\n"
             f"        {body}\n"
             "    return 1.0\n")
 

@@ -9,23 +9,27 @@ import time
 from laplab.jobs.confinement import JobLimits
 
 TINY = {"num_episodes_between_training": 2, "num_epochs": 3, "batch_size": 32}
-SWEEP_CALLS = 5670  # the validation sweep's calls (the default action space); training's come after
-
-SLEEPER = ("import time\n"
+# the validation sweep runs in a forked child of the job (multiprocessing's), which must pass: the
+# counters count the calls of the job's own process, its training, from the first
+SLEEPER = ("import multiprocessing\n"
+           "import time\n"
            "CALLS = [0]\n"
            "def reward_function(params):\n"
-           "    CALLS[0] += 1\n"
-           f"    if CALLS[0] > {SWEEP_CALLS + 20}:\n"
+           "    if multiprocessing.parent_process() is None:\n"
+           "        CALLS[0] += 1\n"
+           "    if CALLS[0] > 20:\n"
            "        time.sleep(10 ** 6)\n"
            "    return 1.0\n")
 
-PRINTER_THEN_EXIT = ("import os\n"
+PRINTER_THEN_EXIT = ("import multiprocessing\n"
+                     "import os\n"
                      "CALLS = [0]\n"
                      "def reward_function(params):\n"
-                     "    CALLS[0] += 1\n"
-                     f"    if CALLS[0] > {SWEEP_CALLS}:\n"
+                     "    if multiprocessing.parent_process() is None:\n"
+                     "        CALLS[0] += 1\n"
+                     "    if CALLS[0] > 0:\n"
                      "        print('reward call', CALLS[0])\n"
-                     f"    if CALLS[0] > {SWEEP_CALLS + 300}:\n"
+                     "    if CALLS[0] > 300:\n"
                      "        os._exit(3)\n"
                      "    return 1.0\n")
 
@@ -43,14 +47,14 @@ def test_a_sleeping_reward_is_stopped_by_the_step_watchdog_and_os_exit_is_caught
         assert time.monotonic() - started < 240
         assert sleeper["status"] == "failed", sleeper
         error = sleeper["error"]
-        assert "wall-clock" not in error and "3 s" in error and "line 6" in error, error
+        assert "wall-clock" not in error and "3 s" in error and "line 8" in error, error
         assert "Traceback" not in error
         # no paths of the server or of the sandbox
         assert str(tmp_path) not in error and "/tmp/laplab" not in error and "reward_function.py" in error
 
         quitter = console.wait_for(console.admin, "quitter", ("failed", "ready"), timeout_s=240)
         assert quitter["status"] == "failed", quitter
-        assert "os._exit(3)" in quitter["error"] and "line 8" in quitter["error"], quitter["error"]
+        assert "os._exit(3)" in quitter["error"] and "line 10" in quitter["error"], quitter["error"]
         assert str(tmp_path) not in quitter["error"] and "/tmp/laplab" not in quitter["error"]
         job_log = (tmp_path / "jobs" / str(quitter["job"]["id"]) / "log.txt").read_text()
         shown = job_log.count("reward call")

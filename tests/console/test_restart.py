@@ -48,6 +48,30 @@ def wait(client, name, predicate, timeout_s=300):
         time.sleep(0.5)
 
 
+def job_pids(database: Path) -> list[int]:
+    """The process ids of the jobs the database says are running."""
+    db = sqlite3.connect(database)
+    try:
+        return [pid for (pid,) in db.execute("SELECT pid FROM jobs WHERE status = 'running' AND pid IS NOT NULL")]
+    finally:
+        db.close()
+
+
+def wait_until_dead(pids: list[int], timeout_s: float = 30.0) -> None:
+    """Poll (0.1 s) until none of ``pids`` runs (gone, or a zombie nobody reaped)."""
+    def running(pid: int) -> bool:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except (OSError, IndexError):
+            return False
+        return state not in ("Z", "X")
+
+    deadline = time.monotonic() + timeout_s
+    while any(running(pid) for pid in pids):
+        assert time.monotonic() < deadline, f"jobs still running {timeout_s} s after the server died: {pids}"
+        time.sleep(0.1)
+
+
 def free_port() -> int:
     import socket
     with socket.socket() as s:
@@ -73,7 +97,9 @@ def test_sigkill_restart_interrupts_then_resumes(tmp_path, monkeypatch, numba_ca
     finally:
         server.send_signal(signal.SIGKILL)
         server.wait(30)
-    time.sleep(2)  # the jobs die with the server (parent-death signal)
+    pids = job_pids(tmp_path / "laplab.db")
+    assert len(pids) == 2, pids  # crash-a and crash-b
+    wait_until_dead(pids)  # the jobs die with the server (parent-death signal)
 
     server = start_server(tmp_path, port, log)
     try:

@@ -55,13 +55,15 @@ def test_second_resume_of_a_training_model_fails_at_once(laplab_cli, tiny_hp, tm
             else:
                 assert "already exists" in text, text
             assert time.time() - started < 60
-        # Readers take no lock and read a consistent checkpoint while the job trains and prunes.
-        for which in ("last", "best"):
-            reader = laplab_cli("evaluate", "twice", "--trials", "1", "--checkpoint", which)
+        # Readers take no lock and read a consistent checkpoint while the job trains and prunes (all
+        # three at once).
+        readers = [laplab_cli("evaluate", "twice", "--trials", "1", "--checkpoint", which) for which in ("last", "best")]
+        exporter = laplab_cli("export", "twice", "--checkpoint", "last", "--out", tmp_path / "twice.tar.gz")
+        for reader in readers:
             out, err = reader.communicate(timeout=150)
             assert reader.returncode == 0, err.decode()
-        exporter = laplab_cli("export", "twice", "--checkpoint", "last", "--out", tmp_path / "twice.tar.gz")
-        assert exporter.wait(150) == 0, exporter.stderr.read().decode()
+        out, err = exporter.communicate(timeout=150)
+        assert exporter.returncode == 0, err.decode()
         importer = laplab_cli("import", tmp_path / "twice.tar.gz", "--name", "copy")
         assert importer.wait(150) == 0, importer.stderr.read().decode()
         assert first.poll() is None  # the first job is untouched

@@ -117,14 +117,12 @@ def test_clone_keeps_action_space_and_starts_from_the_weights(tmp_path):
 
 
 def test_reward_function_failing_mid_training_stops_and_keeps_checkpoints(tmp_path):
-    from laplab.env.action_space import default_action_space
-    from laplab.reward.validate import sweep_params
-    from laplab.track.registry import DEFAULT_TRACK, load_track
-    # fails 2000 calls into training, after the validation sweep's calls
-    limit = len(sweep_params(load_track(DEFAULT_TRACK), default_action_space().sweep_actions())) + 2000
+    # fails 2000 calls into training: the validation sweep runs in a forked child (multiprocessing's),
+    # whose calls this process's counter does not see
     reward = tmp_path / "reward_function.py"
-    reward.write_text("CALLS = [0]\n\n\ndef reward_function(params):\n    CALLS[0] += 1\n"
-                      f"    if CALLS[0] > {limit}:\n        raise ValueError('boom at call %d' % CALLS[0])\n    return 1.0\n")
+    reward.write_text("import multiprocessing\nCALLS = [0]\ndef reward_function(params):\n"
+                      "    if multiprocessing.parent_process() is None:\n        CALLS[0] += 1\n"
+                      "    if CALLS[0] > 2000:\n        raise ValueError('boom at call %d' % CALLS[0])\n    return 1.0\n")
     trainer = create_training("faulty", small_config(reward_path=str(reward), max_episodes=10**6))
     result = trainer.run()
     assert result.stop_reason == "reward_error"
