@@ -26,6 +26,7 @@ from laplab.agents.hyperparameters import PRECISIONS
 from laplab.agents.learner import Action
 from laplab.env.metadata import ALL_SENSORS as SENSOR_NAMES
 from laplab.env.metadata import CAMERA_SENSORS, LIDAR_SENSORS, STATE_SENSOR
+from laplab.env.spec import DEEPER_STEREO_NETWORKS, STEREO_SCHEME_SUFFIX
 
 LIDAR_LAYERS = (256, 256)
 STATE_LAYERS = (256, 256)
@@ -51,6 +52,14 @@ NETWORK_SCHEMES: dict[str, NetworkScheme] = {
         ((32, 8, 4), (32, 4, 2), (64, 4, 2), (64, 3, 1)), (512, 512), (256, 128)),
     "MLP": NetworkScheme((), (), ()),  # vector observations only (STATE, lidar)
 }
+
+#: deepracer-simapp's STEREO_CAMERAS embedder with the deeper networks (``get_stereo_camera_embedders``):
+#: five 3x3 convolutions, no dense layer; the middleware stays the network's. The shallow network
+#: keeps its camera scheme for stereo too.
+STEREO_CONV_LAYERS = ((32, 3, 1), (64, 3, 2), (64, 3, 1), (128, 3, 2), (128, 3, 1))
+for _deeper in DEEPER_STEREO_NETWORKS:  # keys "<network>+STEREO_CAMERAS" (laplab.env.spec.network_layout)
+    NETWORK_SCHEMES[_deeper + STEREO_SCHEME_SUFFIX] = NetworkScheme(
+        STEREO_CONV_LAYERS, (), NETWORK_SCHEMES[_deeper].middleware)
 
 
 @dataclass(frozen=True)
