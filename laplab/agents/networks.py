@@ -4,6 +4,8 @@ A network is rl_coach's layout, as DeepRacer uses it: one input embedder per sen
 outputs concatenated, a "middleware" of dense layers, then heads. Camera embedders are the conv
 schemes named in ``model_metadata.json`` (reference doc section 4); all layers use ReLU except
 the ``STATE`` vector embedder (tanh). Convolutions use no padding ("valid"), as rl_coach does.
+STEREO_CAMERAS with the standard and deep networks gets deepracer-simapp's own stereo embedder
+(:data:`STEREO_CONV_LAYERS`, under the key ``laplab.env.spec.network_layout`` names).
 
 Observations are a tensor (a gymnasium ``Box``) or a dict ``{sensor_name: tensor}`` (a ``Dict``
 space keyed by DeepRacer sensor names). Camera images are channels-first ``(B, C, H, W)`` with

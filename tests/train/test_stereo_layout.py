@@ -73,3 +73,20 @@ def test_a_folder_trained_before_loads_and_clones_with_its_layers(monkeypatch, t
     clone, weights = clone_config("old-stereo", {}, trust_reward=True)
     assert clone.stereo_layout == "laplab-1"
     build_learner(clone, 0, precision="float32").load_weights(weights)
+
+
+def test_a_stereo_deep_model_trains_with_deepracers_stereo_layers(monkeypatch, tmp_path):
+    monkeypatch.setenv("LAPLAB_HOME", str(tmp_path))
+    from laplab.train.jobs import create_training
+    from laplab.train.policy import load_model_policy
+    hyper = {**TrainConfig().hyper().to_dict(), "num_episodes_between_training": 2, "batch_size": 32, "num_epochs": 3}
+    config = replace(TrainConfig(), model_metadata=STEREO_DEEP, hyperparameters=hyper, max_episodes=2, max_time_s=300)
+    trainer = create_training("stereo-deep", config)
+    first_conv = trainer.learner.model.policy_trunk.sensors["observation"].convolutions[0].weight
+    before = first_conv.detach().clone()
+    assert tuple(before.shape) == (32, 2, 3, 3)
+    result = trainer.run()
+    assert result.episodes == 2 and not torch.equal(before, first_conv.detach())
+    loaded = load_model_policy("stereo-deep")
+    assert _convs(loaded.network) == [(32, 3, 1), (64, 3, 2), (64, 3, 1), (128, 3, 2), (128, 3, 1)]
+    assert loaded.config.stereo_layout == "deepracer"
