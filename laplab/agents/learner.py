@@ -109,5 +109,5 @@ def build_learner(spec: ModelSpec, hyperparameters: Hyperparameters, seed: int |
     if spec.algorithm == "sac" and not spec.action_space.is_discrete:
         extra["action_scale"] = spec.action_space.half_ranges()  # DeepRacer's log-probability in the model's units
         extra["policy_head_layers"] = spec.policy_head_layers
-    return cls(spec.observation_space, spec.gym_action_space, hyperparameters, spec.network, seed=seed,
+    return cls(spec.observation_space, spec.gym_action_space, hyperparameters, spec.network_layout, seed=seed,
                num_threads=threads, precision=precision, device=device, **extra)

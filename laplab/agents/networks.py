@@ -4,6 +4,8 @@ A network is rl_coach's layout, as DeepRacer uses it: one input embedder per sen
 outputs concatenated, a "middleware" of dense layers, then heads. Camera embedders are the conv
 schemes named in ``model_metadata.json`` (reference doc section 4); all layers use ReLU except
 the ``STATE`` vector embedder (tanh). Convolutions use no padding ("valid"), as rl_coach does.
+STEREO_CAMERAS with the standard and deep networks gets deepracer-simapp's own stereo embedder
+(:data:`STEREO_CONV_LAYERS`, under the key ``laplab.env.spec.network_layout`` names).
 
 Observations are a tensor (a gymnasium ``Box``) or a dict ``{sensor_name: tensor}`` (a ``Dict``
 space keyed by DeepRacer sensor names). Camera images are channels-first ``(B, C, H, W)`` with
@@ -26,6 +28,7 @@ from laplab.agents.hyperparameters import PRECISIONS
 from laplab.agents.learner import Action
 from laplab.env.metadata import ALL_SENSORS as SENSOR_NAMES
 from laplab.env.metadata import CAMERA_SENSORS, LIDAR_SENSORS, STATE_SENSOR
+from laplab.env.spec import DEEPER_STEREO_NETWORKS, STEREO_SCHEME_SUFFIX
 
 LIDAR_LAYERS = (256, 256)
 STATE_LAYERS = (256, 256)
@@ -51,6 +54,14 @@ NETWORK_SCHEMES: dict[str, NetworkScheme] = {
         ((32, 8, 4), (32, 4, 2), (64, 4, 2), (64, 3, 1)), (512, 512), (256, 128)),
     "MLP": NetworkScheme((), (), ()),  # vector observations only (STATE, lidar)
 }
+
+#: deepracer-simapp's STEREO_CAMERAS embedder with the deeper networks (``get_stereo_camera_embedders``):
+#: five 3x3 convolutions, no dense layer; the middleware stays the network's. The shallow network
+#: keeps its camera scheme for stereo too.
+STEREO_CONV_LAYERS = ((32, 3, 1), (64, 3, 2), (64, 3, 1), (128, 3, 2), (128, 3, 1))
+for _deeper in DEEPER_STEREO_NETWORKS:  # keys "<network>+STEREO_CAMERAS" (laplab.env.spec.network_layout)
+    NETWORK_SCHEMES[_deeper + STEREO_SCHEME_SUFFIX] = NetworkScheme(
+        STEREO_CONV_LAYERS, (), NETWORK_SCHEMES[_deeper].middleware)
 
 
 @dataclass(frozen=True)

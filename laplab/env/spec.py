@@ -22,6 +22,31 @@ from laplab.env.metadata import (CAMERA_SENSORS, LIDAR_SENSORS, MAX_STACK_SIZE, 
                                  MetadataError, ModelMetadata, camera_sensor, lidar_sensor, validate_sensors)
 
 
+#: ``stereo_layout`` of a model: ``"deepracer"`` builds deepracer-simapp's own STEREO_CAMERAS embedder
+#: for the deeper networks (five 3x3 convolutions, ``laplab.agents.networks.STEREO_CONV_LAYERS``);
+#: ``"laplab-1"`` the camera scheme, as laplab built stereo with those networks before laplab.json
+#: version 3 (such model folders keep it, so their checkpoints load as they were).
+STEREO_LAYOUTS = ("deepracer", "laplab-1")
+DEEPER_STEREO_NETWORKS = ("DEEP_CONVOLUTIONAL_NETWORK", "DEEP_CONVOLUTIONAL_NETWORK_DEEP")
+STEREO_SCHEME_SUFFIX = "+STEREO_CAMERAS"
+
+
+def network_layout(network: str, sensors: Sequence[str], stereo_layout: str = "deepracer") -> str:
+    """The name of the layers a model of ``network`` with ``sensors`` builds (a key of
+    ``laplab.agents.networks.NETWORK_SCHEMES``): ``network``, or ``network + STEREO_SCHEME_SUFFIX`` for
+    STEREO_CAMERAS with a deeper network in DeepRacer's ``stereo_layout``."""
+    if stereo_layout not in STEREO_LAYOUTS:
+        raise MetadataError(f"stereo_layout must be one of {', '.join(STEREO_LAYOUTS)}, got {stereo_layout!r}")
+    if "STEREO_CAMERAS" in tuple(sensors) and network in DEEPER_STEREO_NETWORKS and stereo_layout == "deepracer":
+        return network + STEREO_SCHEME_SUFFIX
+    return network
+
+
+def uses_stereo_scheme(network: str, sensors: Sequence[str]) -> bool:
+    """Whether DeepRacer builds its own stereo embedder for this model (so ``stereo_layout`` matters)."""
+    return network_layout(network, sensors) != network
+
+
 @dataclass(frozen=True)
 class ModelSpec:
     """Everything that fixes a model's networks and its observations.
@@ -36,6 +61,7 @@ class ModelSpec:
       keep the STATE vector they always had.
     - ``policy_head_layers``: SAC only: relu dense layers of the policy head before its mean and
       log-std layers: () laplab's, (256,) deepracer-simapp's ``SACPolicyHead`` (imported DeepRacer models).
+    - ``stereo_layout``: see :data:`STEREO_LAYOUTS`; :attr:`network_layout` is what the learner builds.
     """
 
     sensors: tuple[str, ...] = (STATE_SENSOR,)
@@ -47,6 +73,7 @@ class ModelSpec:
     version: str = "5"
     objects_summary: bool = False
     policy_head_layers: tuple[int, ...] = ()
+    stereo_layout: str = "deepracer"
 
     def __post_init__(self) -> None:
         if isinstance(self.stack_size, bool) or not isinstance(self.stack_size, (int, np.integer)) \
@@ -55,6 +82,12 @@ class ModelSpec:
         object.__setattr__(self, "stack_size", int(self.stack_size))
         object.__setattr__(self, "sensors", validate_sensors(list(self.sensors), "ModelSpec.sensors"))
         object.__setattr__(self, "policy_head_layers", validate_head_layers(self.policy_head_layers, self.algorithm))
+        network_layout(self.network, self.sensors, self.stereo_layout)  # validates stereo_layout
+
+    @property
+    def network_layout(self) -> str:
+        """The layers the learner builds (:func:`network_layout`)."""
+        return network_layout(self.network, self.sensors, self.stereo_layout)
 
     @property
     def metadata(self) -> ModelMetadata:
@@ -96,14 +129,16 @@ def validate_head_layers(layers, algorithm: str) -> tuple[int, ...]:
 
 
 def model_spec(metadata: ModelMetadata | None = None, stack_size: int = 1, objects_summary: bool = False,
-               policy_head_layers: tuple[int, ...] = ()) -> ModelSpec:
+               policy_head_layers: tuple[int, ...] = (), stereo_layout: str = "deepracer") -> ModelSpec:
     """The one constructor of a :class:`ModelSpec` from a model's metadata, its ``stack_size``,
-    whether its race type has objects (``objects_summary``) and its SAC ``policy_head_layers``."""
+    whether its race type has objects (``objects_summary``), its SAC ``policy_head_layers`` and its
+    ``stereo_layout``."""
     metadata = metadata if metadata is not None else ModelMetadata()
     return ModelSpec(sensors=metadata.sensors, stack_size=stack_size, network=metadata.neural_network,
                      action_space=metadata.action_space, algorithm=metadata.training_algorithm,
                      lidar_config=metadata.lidar_config, version=metadata.version,
-                     objects_summary=bool(objects_summary), policy_head_layers=tuple(policy_head_layers))
+                     objects_summary=bool(objects_summary), policy_head_layers=tuple(policy_head_layers),
+                     stereo_layout=stereo_layout)
 
 
 def sensor_space(sensor: str, stack_size: int = 1, lidar_config: dict | None = None,

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from laplab.export.car import CONSOLE_SENSORS, PARITY_SAMPLES, PARITY_TOLERANCE, CarExportError, CarGraph, build_car_graph
+from laplab.env.spec import uses_stereo_scheme
 
 
 @dataclass(frozen=True)
@@ -37,9 +38,10 @@ class ConsoleExport:
     limitations: tuple[str, ...] = ()  # what DeepRacer's simapp cannot do with the checkpoint (see below)
 
 
-def simapp_limitations(metadata: dict) -> tuple[str, ...]:
+def simapp_limitations(metadata: dict, stereo_layout: str = "deepracer") -> tuple[str, ...]:
     """Why the simapp (console evaluation, resumed training) could not restore this model's
-    checkpoint, though the car and the console's races run its model.pb (docs/car.md)."""
+    checkpoint, though the car and the console's races run its model.pb (docs/car.md);
+    ``stereo_layout``: the model's (laplab.json's), see :data:`laplab.env.spec.STEREO_LAYOUTS`."""
     notes = []
     if metadata.get("training_algorithm") == "sac":
         notes.append("SAC: DeepRacer's SAC networks differ from laplab's (a dense 256 layer in the policy "
@@ -47,10 +49,10 @@ def simapp_limitations(metadata: dict) -> tuple[str, ...]:
                      "network), so the checkpoint holds the policy and no critics; the simapp cannot evaluate or "
                      "resume it from the checkpoint")
     network = metadata.get("neural_network", "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW")
-    if "STEREO_CAMERAS" in metadata.get("sensor", []) and network != "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW":
-        notes.append(f"STEREO_CAMERAS with {network}: DeepRacer uses a five-layer stereo conv scheme there, "
-                     "laplab the camera scheme; the simapp cannot restore the checkpoint (train stereo models "
-                     "with DEEP_CONVOLUTIONAL_NETWORK_SHALLOW for the console)")
+    if stereo_layout != "deepracer" and uses_stereo_scheme(network, metadata.get("sensor", [])):
+        notes.append(f"STEREO_CAMERAS with {network}: this model was trained by an older laplab with the camera "
+                     "conv scheme (laplab.json stereo_layout 'laplab-1'), not DeepRacer's five-layer stereo scheme; "
+                     "the simapp cannot restore the checkpoint (a model trained from scratch now has DeepRacer's)")
     return tuple(notes)
 
 
@@ -136,4 +138,4 @@ def export_console(name: str, checkpoint: str = "best", out: str | Path | None =
         files["metrics/TrainingMetrics.json"] = source.training_metrics.read_bytes()
     for relative, data in files.items():
         atomic_write_bytes(folder / relative, data)
-    return ConsoleExport(folder, tuple(files), graph, checkpoint_error, simapp_limitations(graph.metadata))
+    return ConsoleExport(folder, tuple(files), graph, checkpoint_error, simapp_limitations(graph.metadata, config.stereo_layout))

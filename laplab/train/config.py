@@ -8,7 +8,7 @@ from dataclasses import dataclass, field, fields, replace
 
 from laplab.agents.hyperparameters import PRECISIONS, Hyperparameters, from_dict as hyperparameters_from_dict
 from laplab.env.metadata import MetadataError, ModelMetadata, metadata_from_dict
-from laplab.env.spec import ModelSpec, model_spec, validate_head_layers
+from laplab.env.spec import STEREO_LAYOUTS, ModelSpec, model_spec, uses_stereo_scheme, validate_head_layers
 from laplab.errors import UserError
 from laplab.train.request import DEFAULT_MAX_TIME_S
 from laplab.sim.race_type import RaceType
@@ -17,7 +17,10 @@ from laplab.track.registry import DEFAULT_TRACK
 from laplab.vehicle.params import PRESETS
 from laplab.vehicle.physics import car_for_version, car_of_config, version_for_car
 
-CONFIG_VERSION = 2  # 2: ``vehicle`` names one of DeepRacer's cars; in 1, "deepracer" was laplab's classic car
+# 2: ``vehicle`` names one of DeepRacer's cars; in 1, "deepracer" was laplab's classic car.
+# 3: ``stereo_layout``: STEREO_CAMERAS with a deeper network builds DeepRacer's stereo embedder; older
+#    folders with that choice built the camera scheme and keep it ("laplab-1").
+CONFIG_VERSION = 3
 
 
 class ConfigError(UserError, ValueError):
@@ -63,6 +66,10 @@ class TrainConfig:
       summary.
     - ``policy_head_layers``: SAC's policy head layers (:class:`ModelSpec`): () laplab's; an imported
       DeepRacer SAC model keeps deepracer-simapp's (256,), and so do its clones.
+    - ``stereo_layout``: the layers of a STEREO_CAMERAS model with a deeper network
+      (:data:`laplab.env.spec.STEREO_LAYOUTS`): ``"deepracer"``, deepracer-simapp's stereo embedder;
+      ``"laplab-1"``, the camera scheme laplab built before (what a laplab.json of version 2 or older
+      with that choice trained, and keeps). Clones keep it.
     - ``cloned_from``: for a clone, the model and checkpoint its weights came from
       (``"SOURCE (checkpoint NAME)"``); None for a model trained from scratch.
     """
@@ -85,6 +92,7 @@ class TrainConfig:
     workers: int = 1
     cloned_from: str | None = None
     policy_head_layers: tuple[int, ...] = ()
+    stereo_layout: str = "deepracer"
     race_type: RaceType = field(default_factory=RaceType)
     version: int = CONFIG_VERSION
 
@@ -129,6 +137,9 @@ class TrainConfig:
                                                     self.model_metadata.training_algorithm))
         except MetadataError as exc:
             raise ConfigError(str(exc), field="policy_head_layers") from None
+        if self.stereo_layout not in STEREO_LAYOUTS:
+            raise ConfigError(f"stereo_layout must be one of {', '.join(STEREO_LAYOUTS)}, got {self.stereo_layout!r}",
+                              field="stereo_layout")
         if isinstance(self.race_type, dict):  # laplab.json's object: validated here
             object.__setattr__(self, "race_type", RaceType.from_dict(self.race_type, "race_type"))
         elif not isinstance(self.race_type, RaceType):
@@ -163,7 +174,7 @@ class TrainConfig:
     def spec(self) -> ModelSpec:
         """The model's spec: its metadata with the hyperparameters' ``stack_size``."""
         return model_spec(self.model_metadata, self.hyper().stack_size, self.race_type.has_objects,
-                          self.policy_head_layers)
+                          self.policy_head_layers, self.stereo_layout)
 
     @property
     def episode_limit(self) -> int:
@@ -195,9 +206,14 @@ class TrainConfig:
             raise ConfigError(f"{source}: unknown key {unknown[0]!r}")
         data = dict(data)
         data["vehicle"] = car_of_config(data)  # a folder from before DeepRacer's cars keeps the car it learnt on
+        written_version = data.get("version") if isinstance(data.get("version"), int) else 1
         data["version"] = CONFIG_VERSION
         if "model_metadata" in data:
             data["model_metadata"] = metadata_from_dict(data["model_metadata"], f"{source}: model_metadata")
+            meta = data["model_metadata"]
+            if written_version < 3 and "stereo_layout" not in data \
+                    and uses_stereo_scheme(meta.neural_network, meta.sensors):
+                data["stereo_layout"] = "laplab-1"  # trained before laplab built DeepRacer's stereo embedder
         if data.get("hyperparameters") is not None:
             data["hyperparameters"] = hyperparameters_from_dict(data["hyperparameters"], f"{source}: hyperparameters")
         data["race_type"] = RaceType.from_dict(data.get("race_type"), f"{source}: race_type")

@@ -253,3 +253,39 @@ def test_distribution_alone_matches_the_full_forward():
     model = ActorCritic(CAMERA, 5)
     images = torch.randint(0, 256, (3, 1, 120, 160), dtype=torch.uint8)
     assert torch.equal(model.distribution(images).logits, model(images)[0].logits)
+
+
+# deepracer-simapp's STEREO_CAMERAS embedder with the deeper networks (get_stereo_camera_embedders):
+# 120x160 -> 118x158 -> 58x78 -> 56x76 -> 27x37 -> 25x35, x128 = 112000, no dense layer; the
+# network's middleware follows (DEEP_CONVOLUTIONAL_NETWORK: 512; _DEEP: 256, 128).
+STEREO_CONVS = [(32, 3, 1), (64, 3, 2), (64, 3, 1), (128, 3, 2), (128, 3, 1)]
+
+
+@pytest.mark.parametrize("name, middleware", [("DEEP_CONVOLUTIONAL_NETWORK", [512]),
+                                              ("DEEP_CONVOLUTIONAL_NETWORK_DEEP", [256, 128])])
+def test_stereo_with_a_deeper_network_builds_deepracers_stereo_embedder(name, middleware):
+    from laplab.env.spec import network_layout
+    layout = network_layout(name, ["STEREO_CAMERAS", "LIDAR"])
+    assert layout == f"{name}+STEREO_CAMERAS"
+    assert network_layout(name, ["STEREO_CAMERAS"], "laplab-1") == name  # laplab's older stereo models
+    assert network_layout(name, ["FRONT_FACING_CAMERA"]) == name
+    assert network_layout("DEEP_CONVOLUTIONAL_NETWORK_SHALLOW", ["STEREO_CAMERAS"]) == "DEEP_CONVOLUTIONAL_NETWORK_SHALLOW"
+    embedder = build_embedder(gym.spaces.Dict({"STEREO_CAMERAS": STEREO}), layout)
+    camera = embedder.sensors["STEREO_CAMERAS"]
+    layers = [m for m in camera.modules() if isinstance(m, nn.Conv2d)]
+    assert [(m.out_channels, m.kernel_size[0], m.stride[0]) for m in layers] == STEREO_CONVS
+    assert layers[0].in_channels == 2
+    images = torch.randint(0, 256, (2, *STEREO.shape), dtype=torch.uint8)
+    assert camera.convolutions(images.float()).shape == (2, 112000)
+    assert _dense_sizes(embedder) == middleware  # no dense layer in the stereo embedder
+    assert embedder({"STEREO_CAMERAS": images}).shape == (2, middleware[-1])
+
+
+def test_a_spec_builds_its_stereo_layout_and_refuses_an_unknown_one():
+    from laplab.env.metadata import MetadataError, metadata_from_dict
+    from laplab.env.spec import model_spec
+    meta = metadata_from_dict({"sensor": ["STEREO_CAMERAS"], "neural_network": "DEEP_CONVOLUTIONAL_NETWORK_DEEP"})
+    assert model_spec(meta).network_layout == "DEEP_CONVOLUTIONAL_NETWORK_DEEP+STEREO_CAMERAS"
+    assert model_spec(meta, stereo_layout="laplab-1").network_layout == "DEEP_CONVOLUTIONAL_NETWORK_DEEP"
+    with pytest.raises(MetadataError, match="stereo_layout"):
+        model_spec(meta, stereo_layout="other")

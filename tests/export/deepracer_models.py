@@ -22,6 +22,8 @@ MODELS = {
     "ppo-stereo-continuous": {"sensor": ["STEREO_CAMERAS"], "action_space_type": "continuous",
                               "action_space": CONTINUOUS},
     "ppo-deep-cam": {"sensor": ["FRONT_FACING_CAMERA"], "neural_network": "DEEP_CONVOLUTIONAL_NETWORK"},
+    # DeepRacer's own stereo embedder (five 3x3 convolutions) with the deep network's 256, 128 middleware
+    "ppo-stereo-deep": {"sensor": ["STEREO_CAMERAS"], "neural_network": "DEEP_CONVOLUTIONAL_NETWORK_DEEP"},
     "sac-cam-sector": {"sensor": ["FRONT_FACING_CAMERA", "SECTOR_LIDAR"], "training_algorithm": "sac",
                        "action_space_type": "continuous", "action_space": CONTINUOUS},
 }

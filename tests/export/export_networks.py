@@ -10,6 +10,7 @@ import torch
 from laplab.agents.networks import ActorCritic, observation_to_tensor
 from laplab.agents.sac_networks import SquashedGaussianActor
 from laplab.agents.onnx_export import random_observations
+from laplab.env.spec import network_layout
 
 SHALLOW, STANDARD, DEEP = ("DEEP_CONVOLUTIONAL_NETWORK_SHALLOW", "DEEP_CONVOLUTIONAL_NETWORK",
                            "DEEP_CONVOLUTIONAL_NETWORK_DEEP")
@@ -66,6 +67,7 @@ def make_network(sensors, network, algorithm, kind):
     varied observations, so outputs clearly differ between observations (the default head is ~0)."""
     space = SPACES[sensors[0]] if len(sensors) == 1 else gym.spaces.Dict({s: SPACES[s] for s in sensors})
     torch.manual_seed(len(sensors) * 7 + len(network))
+    network = network_layout(network, sensors)  # stereo with a deeper network: DeepRacer's stereo embedder
     if algorithm == "sac":
         model = SquashedGaussianActor(space, 2, network)
         head, trunk = model.mean, model.trunk

@@ -140,5 +140,7 @@ def test_what_the_simapp_cannot_restore_is_named():
     assert simapp_limitations({"sensor": ["STEREO_CAMERAS"], "training_algorithm": "clipped_ppo"}) == ()
     sac = simapp_limitations({"sensor": ["FRONT_FACING_CAMERA"], "training_algorithm": "sac"})
     assert len(sac) == 1 and sac[0].startswith("SAC:")
-    stereo = simapp_limitations({"sensor": ["STEREO_CAMERAS", "LIDAR"], "neural_network": "DEEP_CONVOLUTIONAL_NETWORK"})
-    assert len(stereo) == 1 and "five-layer stereo" in stereo[0]
+    stereo = {"sensor": ["STEREO_CAMERAS", "LIDAR"], "neural_network": "DEEP_CONVOLUTIONAL_NETWORK"}
+    assert simapp_limitations(stereo) == ()  # laplab builds DeepRacer's stereo embedder now
+    older = simapp_limitations(stereo, stereo_layout="laplab-1")  # trained before it did
+    assert len(older) == 1 and "five-layer stereo" in older[0] and "laplab-1" in older[0]
