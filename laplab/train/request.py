@@ -124,14 +124,7 @@ class TrainRequest:
         data = {k: v for k, v in dict(data).items() if v is not None}
         if "vehicle" in data:
             data.setdefault("physics", data.pop("vehicle"))
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise RequestError(f"unknown training option {unknown[0]!r}: known are {', '.join(sorted(names))}",
-                               field=unknown[0])
-        if "tracks" in data and not isinstance(data["tracks"], (list, tuple)):
-            raise RequestError(f"tracks must be a list of track names, got {data['tracks']!r}", field="tracks")
-        return cls(**data)
+        return cls(**_known_options(cls, data, "training", ("tracks", "track names")))
 
     def to_mapping(self) -> dict[str, Any]:
         """The request as JSON types (a job's params, a body): every field that is set (not None, not
@@ -190,6 +183,20 @@ class TrainRequest:
         return config
 
 
+def _known_options(cls, data: dict, kind: str, listed: tuple[str, str] | None = None) -> dict:
+    """``data`` when every key is one of request ``cls``'s fields, else a :class:`RequestError` naming
+    the first unknown key (``kind``: "training", "export", "race"); ``listed = (field, what)``: that
+    field must be a JSON list of ``what``."""
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise RequestError(f"unknown {kind} option {unknown[0]!r}: known are {', '.join(sorted(names))}",
+                           field=unknown[0])
+    if listed is not None and listed[0] in data and not isinstance(data[listed[0]], (list, tuple)):
+        raise RequestError(f"{listed[0]} must be a list of {listed[1]}, got {data[listed[0]]!r}", field=listed[0])
+    return data
+
+
 def _is_int(value) -> bool:
     return isinstance(value, int) and not isinstance(value, bool)
 
@@ -237,11 +244,7 @@ class ExportRequest:
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any]) -> "ExportRequest":
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise RequestError(f"unknown export option {unknown[0]!r}: known are format, checkpoint", field=unknown[0])
-        return cls(**{k: v for k, v in data.items() if v is not None})
+        return cls(**_known_options(cls, {k: v for k, v in data.items() if v is not None}, "export"))
 
     def to_mapping(self) -> dict[str, Any]:
         return asdict(self)
@@ -293,14 +296,7 @@ class RaceRequest:
         """A request from a JSON body or a job's params; None values take the defaults; an unknown key
         is refused, naming it."""
         data = {k: v for k, v in dict(data).items() if v is not None}
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise RequestError(f"unknown race option {unknown[0]!r}: known are {', '.join(sorted(names))}",
-                               field=unknown[0])
-        if "models" in data and not isinstance(data["models"], (list, tuple)):
-            raise RequestError(f"models must be a list of model names, got {data['models']!r}", field="models")
-        return cls(**data)
+        return cls(**_known_options(cls, data, "race", ("models", "model names")))
 
     def to_mapping(self) -> dict[str, Any]:
         """The request as JSON types (a job's params); :meth:`from_mapping` reads it back."""
