@@ -38,7 +38,12 @@ Usage:
                               [--budget 600] [--min-time 0]
                               [--precision auto|float32|bfloat16] [--hyperparameters '{"num_epochs": 5}']
                               [--workers 1] [--device cpu|cuda] [--ray-address ADDR] [--race oa3|h2b2]
-                              [--reward reward_function.py]
+                              [--reward reward_function.py] [--look track|old]
+
+``--look old`` trains a camera model on laplab's look from before DeepRacer's worlds (issue 30: a
+camera model trained for 10 minutes on the new look laps as fast as on the old one), e.g.
+
+  python bench/time_to_lap.py --tracks ../shared/reference-tracks/reinvent_base.npy --seeds 0 --sensor FRONT_FACING_CAMERA --budget 600 --min-time 600 --look old
 """
 
 from __future__ import annotations
@@ -124,6 +129,16 @@ def standing_optimum(track: str, car: str) -> float:
     return standing_start_optimal_lap_time(load_track(track), vehicle_preset(car))
 
 
+def use_old_look() -> None:
+    """Camera models in this process see laplab's look from before DeepRacer's worlds (the panelled
+    room, :func:`laplab.sensors.texture.build_track_texture`'s defaults) instead of the track's look:
+    the observation builder asks :func:`laplab.sensors.look.texture_for_track` when it is built."""
+    import laplab.sensors.look as look
+    from laplab.sensors.texture import build_track_texture
+    look.texture_for_track = lambda track, name=None, extra_palettes=(), **changes: build_track_texture(
+        track, extra_palettes=extra_palettes)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -142,7 +157,12 @@ def main() -> None:
     parser.add_argument("--race", choices=("oa3", "h2b2"), default=None,
                         help="oa3: object avoidance, 3 fixed boxes; h2b2: head-to-bot, 2 bots at 1 m/s")
     parser.add_argument("--reward", default=None, help="reward_function.py (default: laplab's)")
+    parser.add_argument("--look", choices=("track", "old"), default="track",
+                        help="the camera's world: the track's DeepRacer look (default) or laplab's old panelled "
+                             "room (issue 30's comparison; in-process training only)")
     args = parser.parse_args()
+    if args.look == "old":
+        use_old_look()
     from laplab.vehicle.physics import resolve_physics
     car = resolve_physics(args.physics) if args.physics else ""
     from laplab.cluster.launch import resolve_device, uses_ray
@@ -160,6 +180,8 @@ def main() -> None:
         label += f" {device}"
     if args.race:
         label += f" {args.race}"
+    if args.look == "old":
+        label += " old look"
     os.environ.setdefault("LAPLAB_HOME", tempfile.mkdtemp(prefix="laplab-bench-"))
     print(f"{'track':28s} {'model':20s} {'lapped':>6s} {'time to 3/3 s':>13s} {'iters':>5s} "
           f"{'env steps':>9s} {'eval lap s':>10s} {'end lap s':>9s} {'/opt':>5s} {'steps/s':>8s}  time shares")
