@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import shutil
 import socket
 from pathlib import Path
 import threading
@@ -17,6 +18,9 @@ pytest.importorskip("uvicorn")
 httpx = pytest.importorskip("httpx")
 
 ADMIN_TOKEN = "admin-test-token-0123456789"
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--disable-dev-shm-usage"]
 TINY_HYPERPARAMETERS = {"num_episodes_between_training": 2, "num_epochs": 3, "batch_size": 32}
 
 
@@ -220,3 +224,24 @@ def create_tiny_model(name: str, reward_source: str | None = None, sensor: list[
         path.write_text(reward_source)
         config = replace(config, reward_path=str(path))
     create_training(name, config)
+
+
+@contextmanager
+def signed_in_page(base_url: str, token: str, viewport: dict | None = None):
+    """A page of Debian's Chromium (headless, the project's flags) signed in to the console at
+    ``base_url`` with ``token``; the browser is closed on leaving. Skips without playwright or chromium."""
+    playwright_api = pytest.importorskip("playwright.sync_api")
+    if not shutil.which("chromium"):
+        pytest.skip("chromium is not installed (apt-get install chromium)")
+    with playwright_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True, timeout=60_000)
+        try:
+            page = browser.new_context(**({"viewport": viewport} if viewport else {})).new_page()
+            page.set_default_timeout(30_000)
+            page.goto(f"{base_url}/login")
+            page.fill("#token", token)
+            page.click("button[type=submit]")
+            page.wait_for_url(f"{base_url}/")
+            yield page
+        finally:
+            browser.close()

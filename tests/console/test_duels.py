@@ -10,7 +10,7 @@ from dataclasses import replace
 
 import pytest
 
-from tests.console.conftest import TINY_HYPERPARAMETERS
+from tests.console.conftest import TINY_HYPERPARAMETERS, signed_in_page
 
 
 def tiny_model(console, key: str, owner: int, vehicle: str | None = None) -> None:
@@ -145,29 +145,14 @@ def test_the_race_job_mounts_both_models_read_only_and_nothing_else(console, rac
 
 def test_the_model_page_shows_the_race_and_the_refusal_next_to_the_field(console, racers, tmp_path):
     """One look in Chromium at the race of the first test (no new job)."""
-    import shutil
-    playwright_api = pytest.importorskip("playwright.sync_api")
-    if not shutil.which("chromium"):
-        pytest.skip("chromium is not installed")
-    from tests.console.test_browser import ARGS, CHROMIUM
-    with playwright_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True, timeout=60_000)
-        try:
-            page = browser.new_context(viewport={"width": 1360, "height": 900}).new_page()
-            page.set_default_timeout(30_000)
-            page.goto(f"{console.url}/login")
-            page.fill("#token", racers[4])
-            page.click("button[type=submit]")
-            page.wait_for_url(f"{console.url}/")
-            page.goto(f"{console.url}/models/alpha")
-            page.wait_for_selector("#duels [data-duel][data-status=done] img.duel-picture")
-            page.wait_for_function("document.querySelector('#duels img.duel-picture').naturalWidth > 100")
-            assert "bravo" in page.inner_text("#duels table")
-            page.select_option("#duel-opponent", "old-car")
-            assert "drives deepracer-v4" in page.inner_text("#duel-error")
-            assert page.is_disabled("#duel-start")
-            page.select_option("#duel-opponent", "bravo")
-            assert page.inner_text("#duel-error") == "" and not page.is_disabled("#duel-start")
-            page.screenshot(path=str(tmp_path / "race-another-model.png"), full_page=True)
-        finally:
-            browser.close()
+    with signed_in_page(console.url, racers[4], viewport={"width": 1360, "height": 900}) as page:
+        page.goto(f"{console.url}/models/alpha")
+        page.wait_for_selector("#duels [data-duel][data-status=done] img.duel-picture")
+        page.wait_for_function("document.querySelector('#duels img.duel-picture').naturalWidth > 100")
+        assert "bravo" in page.inner_text("#duels table")
+        page.select_option("#duel-opponent", "old-car")
+        assert "drives deepracer-v4" in page.inner_text("#duel-error")
+        assert page.is_disabled("#duel-start")
+        page.select_option("#duel-opponent", "bravo")
+        assert page.inner_text("#duel-error") == "" and not page.is_disabled("#duel-start")
+        page.screenshot(path=str(tmp_path / "race-another-model.png"), full_page=True)

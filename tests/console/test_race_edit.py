@@ -13,6 +13,7 @@ import pytest
 from laplab.races.results import race_params
 from laplab.store.atomic import atomic_write_json
 from laplab.store.layout import model_folder
+from tests.console.conftest import signed_in_page
 
 
 def lap(time_s=None, off=0):
@@ -108,34 +109,19 @@ def test_an_edit_re_ranks_the_recorded_laps_and_says_how(race):
 def test_the_race_page_says_how_an_edit_re_ranked(race):
     """In Chromium: the facilitator changes the ranking on the edit page; the race's page then says who
     now ranks how, and the racer's submission row says why it does not rank."""
-    import shutil
-    playwright_api = pytest.importorskip("playwright.sync_api")
-    if not shutil.which("chromium"):
-        pytest.skip("chromium is not installed")
     console, clients, rid, settings, ids = race
     token = console.app.state.store.add_token(console.app.state.store.user_by_name("fay").id, "browser")
-    args = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"]
-    with playwright_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=shutil.which("chromium"), args=args, headless=True, timeout=60_000)
-        try:
-            page = browser.new_context().new_page()
-            page.set_default_timeout(30_000)
-            page.goto(f"{console.url}/login")
-            page.fill("#token", token)
-            page.click("button[type=submit]")
-            page.wait_for_url(f"{console.url}/")
-            page.goto(f"{console.url}/races/{rid}/edit")
-            page.wait_for_function("document.querySelector('#name').value === 'Rules change'")
-            page.select_option("#ranking", "total_time")
-            page.click("#save-race")
-            page.wait_for_url(f"{console.url}/races/{rid}")
-            summary = page.inner_text("#rescored")
-            assert "1 of 2 submissions rank" in summary and "Ann Racer: #2 → unranked" in summary
-            assert "Bob Racer: #1 → #1" in summary
-            page.wait_for_selector(f"tr[data-submission='{ids['ann']}'] td.reason")
-            assert "2 of the race's 3 laps" in page.inner_text(f"tr[data-submission='{ids['ann']}'] td.reason")
-        finally:
-            browser.close()
+    with signed_in_page(console.url, token) as page:
+        page.goto(f"{console.url}/races/{rid}/edit")
+        page.wait_for_function("document.querySelector('#name').value === 'Rules change'")
+        page.select_option("#ranking", "total_time")
+        page.click("#save-race")
+        page.wait_for_url(f"{console.url}/races/{rid}")
+        summary = page.inner_text("#rescored")
+        assert "1 of 2 submissions rank" in summary and "Ann Racer: #2 → unranked" in summary
+        assert "Bob Racer: #1 → #1" in summary
+        page.wait_for_selector(f"tr[data-submission='{ids['ann']}'] td.reason")
+        assert "2 of the race's 3 laps" in page.inner_text(f"tr[data-submission='{ids['ann']}'] td.reason")
     assert clients["fay"].put(f"/api/races/{rid}", json=settings).json()["rescored"]["ranked"] == 2
 
 
