@@ -27,10 +27,7 @@ REPO = Path(__file__).resolve().parents[2]
 REWARD = str(REPO / "laplab/reward/examples/follow_centerline.py")
 
 
-@pytest.fixture(autouse=True)
-def laplab_home(tmp_path, monkeypatch):
-    monkeypatch.setenv("LAPLAB_HOME", str(tmp_path / "home"))
-    return tmp_path / "home"
+pytestmark = pytest.mark.usefixtures("laplab_home")  # tests/train/conftest.py
 
 
 def _config(**changes) -> TrainConfig:

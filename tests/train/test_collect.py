@@ -15,9 +15,7 @@ from laplab.train.jobs import create_training
 STARTS = np.array([0.0, 0.13, 0.31, 0.52, 0.77])
 
 
-@pytest.fixture(autouse=True)
-def laplab_home(tmp_path, monkeypatch):
-    monkeypatch.setenv("LAPLAB_HOME", str(tmp_path / "home"))
+pytestmark = pytest.mark.usefixtures("laplab_home")  # tests/train/conftest.py
 
 
 def trainer_with(cars: int, name: str):

@@ -34,9 +34,7 @@ ROWS = [  # the CPU row (the learner with the most state) runs everywhere, in se
 ]
 
 
-@pytest.fixture(autouse=True)
-def laplab_home(tmp_path, monkeypatch):
-    monkeypatch.setenv("LAPLAB_HOME", str(tmp_path / "home"))
+pytestmark = pytest.mark.usefixtures("laplab_home")  # tests/train/conftest.py
 
 
 def camera_config(algorithm: str, meta: dict) -> TrainConfig:

@@ -23,10 +23,7 @@ from laplab.train.trainer import Trainer
 REWARD = "laplab/reward/examples/follow_centerline.py"
 
 
-@pytest.fixture(autouse=True)
-def laplab_home(tmp_path, monkeypatch):
-    monkeypatch.setenv("LAPLAB_HOME", str(tmp_path / "home"))
-    return tmp_path / "home"
+pytestmark = pytest.mark.usefixtures("laplab_home")  # tests/train/conftest.py
 
 
 def _config(**hyper) -> TrainConfig:

@@ -27,10 +27,7 @@ CONTINUOUS = {"action_space": {"steering_angle": {"low": -30, "high": 30}, "spee
               "action_space_type": "continuous"}
 
 
-@pytest.fixture(autouse=True)
-def laplab_home(tmp_path, monkeypatch):
-    monkeypatch.setenv("LAPLAB_HOME", str(tmp_path / "home"))
-    return tmp_path / "home"
+pytestmark = pytest.mark.usefixtures("laplab_home")  # tests/train/conftest.py
 
 
 def small_config(**changes) -> TrainConfig:
