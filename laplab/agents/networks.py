@@ -207,13 +207,23 @@ def native_bfloat16() -> bool:
     return any(bool(getattr(cpu, name, lambda: False)()) for name in checks)
 
 
+def bfloat16_is_native(device_type: str) -> bool:
+    """Whether a network on ``device_type`` ("cpu", "cuda") computes bfloat16 in hardware: the
+    CPU's own instructions, or the GPU's (Ampere and later)."""
+    if device_type == "cuda":
+        return bool(torch.cuda.is_available() and torch.cuda.is_bf16_supported())
+    return device_type == "cpu" and native_bfloat16()
+
+
 def resolve_precision(precision: str, module: nn.Module) -> str:
-    """``"auto"`` -> ``"bfloat16"`` for camera networks on a CPU with native bfloat16, else
-    ``"float32"``; the others pass through."""
+    """``"auto"`` -> ``"bfloat16"`` for camera networks on a device with native bfloat16 (where the
+    module's parameters live, not the machine's CPU: a GPU learner on a CPU without it still
+    gets it), else ``"float32"``; the others pass through."""
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     if precision == "auto":
-        return "bfloat16" if has_convolutions(module) and native_bfloat16() else "float32"
+        device_type = next((p.device.type for p in module.parameters()), "cpu")
+        return "bfloat16" if has_convolutions(module) and bfloat16_is_native(device_type) else "float32"
     return precision
 
 

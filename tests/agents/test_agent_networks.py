@@ -231,6 +231,21 @@ def test_auto_precision_is_bfloat16_only_for_camera_networks_on_native_hardware(
         resolve_precision("float16", camera)
 
 
+def test_auto_precision_asks_the_device_the_network_lives_on(monkeypatch):
+    """A learner on a GPU gets bfloat16 from the GPU's support, not from the host CPU's (an H200's
+    learner on a host with AVX512-BF16 once resolved "auto" by the CPU)."""
+    monkeypatch.setattr(networks, "native_bfloat16", lambda: True)
+    elsewhere = ActorCritic(CAMERA, 5).to("meta")  # a device with no bfloat16 arithmetic of ours
+    assert resolve_precision("auto", elsewhere) == "float32"
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    for supported in (True, False):
+        monkeypatch.setattr(torch.cuda, "is_bf16_supported", lambda *args, **kwargs: supported)
+        assert networks.bfloat16_is_native("cuda") is supported
+    monkeypatch.setattr(networks, "native_bfloat16", lambda: False)
+    monkeypatch.setattr(torch.cuda, "is_bf16_supported", lambda *args, **kwargs: True)
+    assert networks.bfloat16_is_native("cuda") and not networks.bfloat16_is_native("cpu")
+
+
 def test_bfloat16_trunks_keep_float32_weights_features_and_gradients():
     torch.manual_seed(0)
     model = ActorCritic(CAMERA, 5)
