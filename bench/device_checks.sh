@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The checks that need a GPU machine (16 cores, one GPU), as one prepared run of at most ~9 minutes:
-# the learner on CUDA (tests/train/test_learner_device.py), a camera model's time to lap with 14 Ray
-# rollout workers and the learner on the GPU, the collection's scaling 1 -> 14 Ray workers, and the
+# the learner on CUDA (tests/train/test_learner_device.py), a camera model's time to lap with the learner
+# on the GPU against the CPU, and with 14 Ray rollout workers, the collection's scaling 1 -> 14 Ray workers, and the
 # camera's frames/s on 16 cores. Each stage has its own time limit and appends to $OUT/device.log, so
 # a stage that runs over still leaves the others' figures.
 #
@@ -9,7 +9,8 @@
 #   QUICK=1 bash bench/device_checks.sh    # a short rehearsal on any machine (2 workers, no CUDA needed)
 #
 # Where laplab's dependencies are missing (the device image has torch and numba, not Ray or
-# gymnasium), carry them as cp312 wheels in .whl/ (BENCHMARKS.md says how) and they are installed first.
+# gymnasium), `bash bench/device_wheels.sh` puts them in .whl/ as cp312 wheels; carry .whl (and .gpu, holding
+# reinvent_base.npy for the camera stage) and they are installed first.
 set -u
 OUT=${OUT:-/tmp/device-out}
 mkdir -p "$OUT"
@@ -44,7 +45,11 @@ stage machine 30 bash -c 'nproc; free -g | head -2; nvidia-smi --query-gpu=name,
     \"torch\", torch.__version__, \"cuda\", torch.cuda.is_available()); import ray, gymnasium, laplab; print(\"ray\", ray.__version__)";
     lscpu | grep -E "Model name|Flags" | sed "s/Flags:.*avx512_bf16.*/AVX512-BF16: yes/; s/Flags:.*/AVX512-BF16: no/"'
 stage learner-on-cuda 110 python3 -m pytest -q -x -p no:cacheprovider tests/train/test_learner_device.py
-stage time-to-lap 300 python3 bench/time_to_lap.py --tracks classic_2018 --seeds 0 --console ppo-discrete \
+stage time-to-lap-gpu 90 python3 bench/time_to_lap.py --tracks classic_2018 --seeds 0 --console ppo-discrete \
+    --device "$DEVICE" --budget 60
+stage time-to-lap-cpu 90 python3 bench/time_to_lap.py --tracks classic_2018 --seeds 0 --console ppo-discrete \
+    --budget 60
+stage time-to-lap-workers 300 python3 bench/time_to_lap.py --tracks classic_2018 --seeds 0 --console ppo-discrete \
     --workers "$MANY" --device "$DEVICE" --budget "$BUDGET"
 # shellcheck disable=SC2086
 stage scaleout 130 python3 bench/scaleout.py --sensors FRONT_FACING_CAMERA --workers $WORKERS \
