@@ -271,20 +271,25 @@ def _run(args: list[str], what: str) -> tuple[str, dict]:
 
 
 def evaluate(name: str, track: str | None = None, trials: int | None = None, store: str | None = None,
-             extra_args: tuple[str, ...] = (), physics: str | None = None) -> dict[str, Any]:
+             extra_args: tuple[str, ...] = (), physics: str | None = None,
+             domain_randomization: bool = False) -> dict[str, Any]:
     """Evaluate model ``name`` as ``laplab evaluate`` does (DeepRacer's trial rules, the car it trained
     with unless ``physics`` names another; kept in the model folder) and return its result: ``trials``
     (lap times, statuses, off-tracks; None: EvaluateRequest's default, 3), the summary, the ``car``.
+    ``domain_randomization``: the camera sees training's domain randomisation (a camera model only).
     The settings are checked here first (:class:`~laplab.evaluate.trials.EvaluateRequest`: the
     console's messages and fields)."""
     from laplab.evaluate.trials import EvaluateRequest
     request = EvaluateRequest.from_mapping({"track": track, "physics": physics,
+                                            "domain_randomization": domain_randomization,
                                             **({"trials": trials} if trials is not None else {})})
     args = ["evaluate", name, "--trials", str(request.trials), "--json", *_store_args(store), *extra_args]
     if physics:
         args += ["--physics", str(physics)]
     if track:
         args += ["--track", track]
+    if request.domain_randomization:
+        args.append("--domain-randomization")
     return json.loads(_run(args, f"evaluating {name!r}")[0])
 
 

@@ -76,6 +76,15 @@ def test_evaluation_and_export_errors_carry_their_request_field(console, make_mo
     assert answer.status_code == 400 and answer.json()["detail"]["field"] == "checkpoint", answer.text
 
 
+def test_a_randomised_evaluation_of_a_model_without_a_camera_is_refused_at_once(console, make_model):
+    make_model("randomize-state")  # laplab's default sensor: STATE
+    answer = console.admin.post("/api/models/randomize-state/evaluations", json={"domain_randomization": True})
+    assert answer.status_code == 400, answer.text
+    detail = answer.json()["detail"]
+    assert detail["field"] == "domain_randomization" and "no camera (sensors: STATE)" in detail["message"]
+    assert console.admin.get("/api/models/randomize-state/evaluations").json() == []  # no job was queued
+
+
 def test_the_create_form_shows_the_request_default(console):
     page = console.admin.get("/create")
     assert page.status_code == 200, page.text[:300]

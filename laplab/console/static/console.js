@@ -376,7 +376,7 @@ const Console = (() => {
     async function loadEvaluations() {
       const list = await api("GET", `/api/models/${name}/evaluations`);
       $("#evaluations").replaceChildren(...list.slice().reverse().map(ev => el("div", {class: "evaluation", "data-evaluation": ev.id},
-        el("h3", {}, `Evaluation ${ev.id} `, badge(ev.status), ev.track ? ` on ${ev.track}` : "", evaluationHeadline(ev.summary)),
+        el("h3", {}, `Evaluation ${ev.id} `, badge(ev.status), ev.track ? ` on ${ev.track}` : "", ev.settings?.domain_randomization ? " · domain randomisation" : "", evaluationHeadline(ev.summary)),
         ev.error ? el("p", {class: "field-error"}, ev.error) : "",
         ev.trials.length ? el("table", {class: "grid compact"}, el("thead", {}, el("tr", {}, ...["Trial", "Time", "Progress %", "Status", "Off-track", "Gap to optimal"].map(h => el("th", {class: h === "Status" || h === "Trial" ? "" : "num"}, h)))),
           el("tbody", {}, ...ev.trials.map((t, i) => el("tr", {}, el("td", {}, i + 1), el("td", {class: "num"}, lap(t.lap_time)), el("td", {class: "num"}, fmt(t.progress, 1)),
@@ -389,7 +389,8 @@ const Console = (() => {
       ev.preventDefault(); $("#eval-error").textContent = "";
       const resets = $("#eval-resets").value.trim();
       try { await api("POST", `/api/models/${name}/evaluations`, {track: $("#eval-track").value, trials: +$("#eval-trials").value,
-              off_track_penalty: +$("#eval-penalty").value, resets: resets === "" ? null : +resets, video: $("#eval-video").checked});
+              off_track_penalty: +$("#eval-penalty").value, resets: resets === "" ? null : +resets, video: $("#eval-video").checked,
+              domain_randomization: $("#eval-randomize").checked});
             toast("evaluation queued"); loadEvaluations(); }
       catch (e) { $("#eval-error").textContent = e.message; }
     });
