@@ -44,6 +44,9 @@ Usage:
 camera model trained for 10 minutes on the new look laps as fast as on the old one), e.g.
 
   python bench/time_to_lap.py --tracks ../shared/reference-tracks/reinvent_base.npy --seeds 0 --sensor FRONT_FACING_CAMERA --budget 600 --min-time 600 --look old
+
+The trained models stay in ``$LAPLAB_HOME`` (a new temporary folder when unset): set it to evaluate
+them afterwards, e.g. under the domain randomisation with ``bench/randomized_laps.py`` (issue 30).
 """
 
 from __future__ import annotations
