@@ -14,8 +14,13 @@ Issue 30's row trains a camera model for 10 minutes on reinvent_base's DeepRacer
       --seeds 0 --sensor FRONT_FACING_CAMERA --budget 600 --min-time 600
   LAPLAB_HOME=/tmp/dr30/home python bench/randomized_laps.py --trials 20
 
+``--parts`` then drives the same trials under each part of the randomisation alone (scene colours,
+lighting, noise and blur, camera jitter: the other ranges set to 0), to see which one costs the laps;
+those runs swap :data:`laplab.sensors.randomize.DOMAIN_RANDOMIZATION` for the part in this process
+and keep nothing in the model folder.
+
 Usage:
-  python bench/randomized_laps.py [MODEL] [--trials 20] [--seed 0] [--checkpoint best|last]
+  python bench/randomized_laps.py [MODEL] [--trials 20] [--seed 0] [--checkpoint best|last] [--parts]
 MODEL defaults to the newest model in ``$LAPLAB_HOME``.
 """
 
@@ -46,6 +51,32 @@ def evaluate_looks(model: str, trials: int, seed: int, checkpoint: str) -> list[
     return rows
 
 
+PARTS = {"scene colours": ("texture_variants",), "lighting": ("brightness", "contrast", "gamma"),
+         "noise and blur": ("noise", "blur"), "camera jitter": ("position_jitter", "yaw_jitter_deg", "pitch_jitter_deg")}
+
+
+def evaluate_parts(model: str, trials: int, seed: int, checkpoint: str) -> list[tuple[str, object]]:
+    """The model's evaluation under each part of :data:`PARTS` alone (nothing written)."""
+    from dataclasses import replace
+
+    import laplab.sensors.randomize as randomize
+    from laplab.evaluate import EvaluationSettings
+    from laplab.evaluate.trials import prepare_evaluation, run_prepared
+    full = randomize.DOMAIN_RANDOMIZATION
+    settings = EvaluationSettings(trials=trials, force=trials > 5, seed=seed, checkpoint=checkpoint,
+                                  domain_randomization=True)
+    prepared = prepare_evaluation(model, settings)
+    rows = []
+    try:
+        for label, kept in PARTS.items():
+            randomize.DOMAIN_RANDOMIZATION = replace(full, **{name: 0 for name in sum(PARTS.values(), ())
+                                                              if name not in kept})
+            rows.append((f"  {label} alone", run_prepared(prepared)))
+    finally:
+        randomize.DOMAIN_RANDOMIZATION = full
+    return rows
+
+
 def row(label: str, result) -> str:
     """One printed line of figures for an evaluation result."""
     trials = result.trials
@@ -64,11 +95,14 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=20, help="greedy trials per look, 1..100 (default 20)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the randomisation's draws (default 0)")
     parser.add_argument("--checkpoint", default="best", help="best, last or a checkpoint file name")
+    parser.add_argument("--parts", action="store_true", help="also each part of the randomisation alone (see above)")
     args = parser.parse_args()
     from laplab.errors import UserError
     model = args.model or newest_model()
     try:
         rows = evaluate_looks(model, args.trials, args.seed, args.checkpoint)
+        if args.parts:
+            rows += evaluate_parts(model, args.trials, args.seed, args.checkpoint)
     except UserError as error:
         raise SystemExit(f"randomized_laps.py: {error}") from None
     from host import host_line  # bench/host.py
