@@ -38,12 +38,20 @@ Usage:
                               [--budget 600] [--min-time 0]
                               [--precision auto|float32|bfloat16] [--hyperparameters '{"num_epochs": 5}']
                               [--workers 1] [--device cpu|cuda] [--ray-address ADDR] [--race oa3|h2b2]
-                              [--reward reward_function.py] [--look track|old]
+                              [--reward reward_function.py] [--look track|old] [--domain-randomization]
 
 ``--look old`` trains a camera model on laplab's look from before DeepRacer's worlds (issue 30: a
 camera model trained for 10 minutes on the new look laps as fast as on the old one), e.g.
 
   python bench/time_to_lap.py --tracks ../shared/reference-tracks/reinvent_base.npy --seeds 0 --sensor FRONT_FACING_CAMERA --budget 600 --min-time 600 --look old
+
+``--domain-randomization`` trains with the camera's domain randomisation (the training option
+``laplab train --domain-randomization`` sets; the row's model says ``DR``), issue 30's robust model:
+
+  python bench/time_to_lap.py --tracks ../shared/reference-tracks/reinvent_base.npy --seeds 0 --sensor FRONT_FACING_CAMERA --budget 600 --min-time 600 --domain-randomization
+
+The trained models stay in ``$LAPLAB_HOME`` (a new temporary folder when unset): set it to evaluate
+them afterwards, e.g. under the domain randomisation with ``bench/randomized_laps.py`` (issue 30).
 """
 
 from __future__ import annotations
@@ -73,7 +81,7 @@ def race_for(label: str | None):
 def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s: float = 0.0,
                 precision: str = "auto", hyperparameters: dict | None = None, console: str | None = None,
                 workers: int = 1, device: str = "cpu", ray_address: str | None = None, car: str = "",
-                race: str | None = None, reward: str | None = None) -> dict:
+                race: str | None = None, reward: str | None = None, domain_randomization: bool = False) -> dict:
     from laplab.cluster.launch import RayWorkers, uses_ray
     from laplab.env.metadata import ModelMetadata
     from laplab.train.config import TrainConfig
@@ -86,7 +94,8 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
         metadata = replace(ModelMetadata(), sensors=(sensor,)).to_dict()
     config = replace(TrainConfig(), track=track, seed=seed, max_time_s=budget_s, model_metadata=metadata,
                      precision=precision, workers=workers, vehicle=car, race_type=race_for(race),
-                     reward_path=str(Path(reward).resolve()) if reward else None)
+                     reward_path=str(Path(reward).resolve()) if reward else None,
+                     domain_randomization=domain_randomization)
     if hyperparameters:
         config = replace(config, hyperparameters={**config.hyper().to_dict(), **hyperparameters})
     name = f"bench-{Path(track).stem.replace('_', '-')}-{seed}-{int(time.time() * 1000) % 10**8}"
@@ -116,7 +125,7 @@ def time_to_lap(track: str, seed: int, sensor: str, budget_s: float, min_time_s:
     total = sum(seconds.values()) or 1.0
     return {"car": trainer.config.car, "lapped": bool(first), "wall": first.get("wall", float("nan")), "iterations": first.get("iterations", result.iterations),
             "steps": first.get("steps", result.env_steps), "eval_lap": first.get("lap"), "end_lap": end.get("lap"),
-            "throughput": result.env_steps / max(elapsed, 1e-9),
+            "throughput": result.env_steps / max(elapsed, 1e-9), "trained_steps": result.env_steps,
             "shares": {key: value / total for key, value in seconds.items()}}
 
 
@@ -160,6 +169,8 @@ def main() -> None:
     parser.add_argument("--look", choices=("track", "old"), default="track",
                         help="the camera's world: the track's DeepRacer look (default) or laplab's old panelled "
                              "room (issue 30's comparison; in-process training only)")
+    parser.add_argument("--domain-randomization", action="store_true",
+                        help="train with the domain randomisation (as `laplab train --domain-randomization`)")
     args = parser.parse_args()
     if args.look == "old":
         use_old_look()
@@ -182,6 +193,8 @@ def main() -> None:
         label += f" {args.race}"
     if args.look == "old":
         label += " old look"
+    if args.domain_randomization:
+        label += " DR"
     os.environ.setdefault("LAPLAB_HOME", tempfile.mkdtemp(prefix="laplab-bench-"))
     print(f"{'track':28s} {'model':20s} {'lapped':>6s} {'time to 3/3 s':>13s} {'iters':>5s} "
           f"{'env steps':>9s} {'eval lap s':>10s} {'end lap s':>9s} {'/opt':>5s} {'steps/s':>8s}  time shares")
@@ -191,7 +204,8 @@ def main() -> None:
             continue
         runs = [time_to_lap(track, seed, args.sensor, args.budget, args.min_time, args.precision,
                             json.loads(args.hyperparameters), args.console, args.workers, device,
-                            args.ray_address, car, args.race, args.reward) for seed in args.seeds]
+                            args.ray_address, car, args.race, args.reward, args.domain_randomization)
+                for seed in args.seeds]
         lapped = [r for r in runs if r["lapped"]]
         med = lambda key: statistics.median(r[key] for r in lapped) if lapped else float("nan")
         laps = [r["eval_lap"] for r in lapped if r["eval_lap"]]
@@ -204,6 +218,7 @@ def main() -> None:
               f"{statistics.median(r['throughput'] for r in runs):8.0f}  "
               + " ".join(f"{key} {statistics.median(r['shares'].get(key, 0.0) for r in runs):.0%}"
                          for key in runs[0]["shares"]))
+        print(f"{'':28s} env steps trained: {' '.join(str(r['trained_steps']) for r in runs)} (per seed)")
 
 
 if __name__ == "__main__":

@@ -105,7 +105,7 @@ class TrainingJob:
               max_time: str | float | None = None, workers: int = 1, store: str | None = None,
               ray_address: str | None = None, extra_args: tuple[str, ...] = (),
               log_folder: str | os.PathLike | None = None, physics: str | None = None,
-              race_type: "RaceType | dict | None" = None) -> "TrainingJob":
+              race_type: "RaceType | dict | None" = None, domain_randomization: bool = False) -> "TrainingJob":
         """Start training model ``name`` in the background and return at once.
 
         ``track`` (None: laplab's default track) may be a list (``["reInvent2019_track",
@@ -116,13 +116,14 @@ class TrainingJob:
         None for ``$LAPLAB_HOME/models``; ``physics`` (4, 5, 6 or classic) DeepRacer's car to train with
         (None: the one the model metadata's ``version`` chooses; docs/physics.md); ``race_type`` a
         :class:`laplab.sim.race_type.RaceType` (or its dict, e.g. ``{"kind": "object_avoidance",
-        "objects": 3}``; None: a time trial; docs/race-types.md).
+        "objects": 3}``; None: a time trial; docs/race-types.md); ``domain_randomization`` trains a
+        camera model under the camera's domain randomisation (``laplab train --domain-randomization``).
 
         The request is checked here, as the console's API checks it (:meth:`TrainRequest.validate
         <laplab.train.request.TrainRequest.validate>`): a bad value raises the same
         :class:`~laplab.errors.UserError`, with the same ``field``, before any process starts.
         """
-        request = training_request(name, files, track, max_time, workers, physics, race_type)
+        request = training_request(name, files, track, max_time, workers, physics, race_type, domain_randomization)
         args = ["train", *_train_args(request, files), "--quiet", *_store_args(store)]
         if ray_address:
             args += ["--ray-address", ray_address]
@@ -173,14 +174,15 @@ class TrainingJob:
 
 def training_request(name: str, files: ModelFiles | None = None, track: str | list[str] | None = None,
                      max_time: str | float | None = None, workers: int = 1, physics: str | None = None,
-                     race_type=None):
+                     race_type=None, domain_randomization: bool = False):
     """The :class:`~laplab.train.request.TrainRequest` of :meth:`TrainingJob.start`'s arguments,
     validated (files read, the track loaded); a bad value is a UserError naming the request's field."""
     from laplab.agents.hyperparameters import load_hyperparameters
     from laplab.env.metadata import load_model_metadata
     from laplab.train.config import parse_duration
     from laplab.train.request import TrainRequest
-    values: dict[str, Any] = {"name": name, "workers": workers, "physics": physics}
+    values: dict[str, Any] = {"name": name, "workers": workers, "physics": physics,
+                              "domain_randomization": domain_randomization}
     if track is not None:
         values["tracks" if not isinstance(track, str) else "track"] = track if isinstance(track, str) else tuple(track)
     if isinstance(max_time, str):
@@ -214,6 +216,8 @@ def _train_args(request, files: ModelFiles) -> list[str]:
         args += ["--physics", request.physics]
     if request.race_type is not None:
         args += race_type_args(request.race_type)
+    if request.domain_randomization:
+        args.append("--domain-randomization")
     return args
 
 
@@ -271,20 +275,25 @@ def _run(args: list[str], what: str) -> tuple[str, dict]:
 
 
 def evaluate(name: str, track: str | None = None, trials: int | None = None, store: str | None = None,
-             extra_args: tuple[str, ...] = (), physics: str | None = None) -> dict[str, Any]:
+             extra_args: tuple[str, ...] = (), physics: str | None = None,
+             domain_randomization: bool = False) -> dict[str, Any]:
     """Evaluate model ``name`` as ``laplab evaluate`` does (DeepRacer's trial rules, the car it trained
     with unless ``physics`` names another; kept in the model folder) and return its result: ``trials``
     (lap times, statuses, off-tracks; None: EvaluateRequest's default, 3), the summary, the ``car``.
+    ``domain_randomization``: the camera sees training's domain randomisation (a camera model only).
     The settings are checked here first (:class:`~laplab.evaluate.trials.EvaluateRequest`: the
     console's messages and fields)."""
     from laplab.evaluate.trials import EvaluateRequest
     request = EvaluateRequest.from_mapping({"track": track, "physics": physics,
+                                            "domain_randomization": domain_randomization,
                                             **({"trials": trials} if trials is not None else {})})
     args = ["evaluate", name, "--trials", str(request.trials), "--json", *_store_args(store), *extra_args]
     if physics:
         args += ["--physics", str(physics)]
     if track:
         args += ["--track", track]
+    if request.domain_randomization:
+        args.append("--domain-randomization")
     return json.loads(_run(args, f"evaluating {name!r}")[0])
 
 

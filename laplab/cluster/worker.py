@@ -108,8 +108,8 @@ class RolloutWorker:
                              seed=setup.seed)
         randomization = None
         if config.domain_randomization:
-            from laplab.sensors.randomize import RandomizationParams
-            randomization = RandomizationParams(enabled=True)
+            from laplab.sensors.randomize import DOMAIN_RANDOMIZATION
+            randomization = DOMAIN_RANDOMIZATION
         self.observations = ObservationBuilder(self.sim, config.spec, seed=setup.seed, randomization=randomization)
         max_speed = config.model_metadata.action_space.max_speed
         self.reward_fn = _compile_reward(setup.reward_source, setup.reward_path, "reward_function",

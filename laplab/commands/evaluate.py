@@ -52,6 +52,10 @@ def register(subparsers) -> None:
     parser.add_argument("--physics", default=None, metavar="V",
                         help="drive another of DeepRacer's cars: 4, 5, 6 or classic (default: the car the model "
                              "trained with)")
+    parser.add_argument("--domain-randomization", action="store_true",
+                        help="the camera sees the track with training's domain randomisation (colours, lighting, "
+                             "noise, blur, camera jitter), drawn per frame from --seed: does a camera model keep "
+                             "lapping under it? (camera models only; such an evaluation does not rank)")
     parser.add_argument("--list", action="store_true", help="list the model's evaluations instead of running one")
     parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
     from laplab.commands.store_option import add_store_option
@@ -86,10 +90,11 @@ def _evaluate(args: argparse.Namespace, console: Console, store_url: str | None)
             track=args.track, trials=args.trials, checkpoint=args.checkpoint,
             off_track_penalty=args.off_track_penalty, crash_penalty=args.crash_penalty, resets=args.resets,
             continuous=args.continuous, seed=args.seed, stochastic=args.stochastic, video=args.video,
-            force=args.force, max_trial_time=args.max_trial_time, physics=args.physics)
+            force=args.force, max_trial_time=args.max_trial_time, physics=args.physics,
+            domain_randomization=args.domain_randomization)
         result, stamp = evaluate_model(args.model, settings)
     except EvaluationError as exc:  # the setting's option names the field (trials -> --trials)
-        raise UserError(str(exc), field=f"--{exc.field.replace('_', '-')}" if exc.field else None) from None
+        raise _as_option_error(exc) from None
     from laplab.store.layout import model_folder
     folder = model_folder(args.model)
     if args.json:
@@ -97,6 +102,20 @@ def _evaluate(args: argparse.Namespace, console: Console, store_url: str | None)
         return 0
     print_evaluation(console, result, stamp, folder, store_url)
     return 0
+
+
+def _as_option_error(error) -> "UserError":
+    """An evaluation setting's error as ``laplab evaluate`` reports it: its field is the option
+    (``domain_randomization`` -> ``--domain-randomization``), and a message that starts with the
+    setting's words (``domain randomization ...``) starts with the option instead."""
+    from laplab.errors import UserError
+    if not error.field:
+        return UserError(str(error))
+    option, words = f"--{error.field.replace('_', '-')}", error.field.replace("_", " ")
+    message = str(error)
+    if message.startswith(words + " "):
+        message = option + message[len(words):]
+    return UserError(message, field=option)
 
 
 def car_line(car: str, trained_with: str | None = None) -> str:
@@ -118,7 +137,8 @@ def print_evaluation(console: Console, result, stamp: str, folder, store_url: st
     resets = "unlimited" if s.resets is None else str(s.resets)
     title = (f"{result.model} ({result.checkpoint}) on {result.track.name}: {len(result.trials)} "
              f"{'continuous laps' if s.continuous else 'trials'}, off-track penalty {s.off_track_penalty:g} s, "
-             f"resets {resets}, {'stochastic' if s.stochastic else 'greedy'}")
+             f"resets {resets}, {'stochastic' if s.stochastic else 'greedy'}"
+             + (f", domain randomisation (seed {s.seed})" if s.domain_randomization else ""))
     console.print(trials_table(result.trials, result.summary.optimal_lap_time, title=title))
     console.print(car_line(result.vehicle.name, trained_with=result.trained_car))
     if result.race_type is not None:

@@ -134,7 +134,10 @@ def train_request(args: argparse.Namespace, name: str | None = None):
         if hasattr(args, "precision"):
             values["precision"] = args.precision
             values["domain_randomization"] = bool(args.domain_randomization)
-        return TrainRequest.from_mapping(values)
+        request = TrainRequest.from_mapping(values)
+        if request.domain_randomization:
+            request.to_config()  # refused for a model without a camera before anything is written
+        return request
     except UserError as exc:
         raise as_cli_error(exc) from None
 

@@ -33,7 +33,13 @@ def start_evaluation(name: str, body: Evaluate, request: Request, user: User = D
     from laplab.evaluate.trials import EvaluateRequest
     check_track_name(body.track)
     try:
-        EvaluateRequest.from_mapping(body.model_dump())
+        settings = EvaluateRequest.from_mapping(body.model_dump())
+        if settings.domain_randomization:  # refused now for a model without a camera, not when the job runs
+            from laplab.env.metadata import load_model_metadata
+            from laplab.evaluate.trials import randomization_for
+            metadata = models_dir() / name / "model" / "model_metadata.json"
+            if metadata.is_file():
+                randomization_for(settings, load_model_metadata(metadata).sensors)
         if body.track:
             from laplab.track.registry import load_track
             load_track(body.track.removesuffix("@reversed"))

@@ -27,11 +27,12 @@ class _ModelBody(BaseModel):
 # defaults, so that the console, the CLI, the worker and laplab.api cannot drift; the request's own
 # checks give the error messages and their fields.
 CLONE_FIELDS = ("track", "model_metadata", "hyperparameters", "max_time_s", "max_episodes", "workers")
-CREATE_FIELDS = (*CLONE_FIELDS, "seed", "physics", "race_type")
+CREATE_FIELDS = (*CLONE_FIELDS, "seed", "physics", "race_type", "domain_randomization")
 _FIELD_HELP = {"workers": "rollout workers on the console's Ray cluster",
                "physics": "DeepRacer's car: 4, 5, 6 or classic (None: the one model_metadata's version chooses)",
                "race_type": "laplab.sim.race_type.RaceType's fields (None: time trial)",
-               "max_time_s": "stop after this many seconds of training"}
+               "max_time_s": "stop after this many seconds of training",
+               "domain_randomization": "train under the camera's domain randomisation (a camera model only)"}
 
 
 def _train_body(name: str, names: tuple[str, ...], doc: str) -> type[BaseModel]:
@@ -44,7 +45,7 @@ def _train_body(name: str, names: tuple[str, ...], doc: str) -> type[BaseModel]:
 CloneModel = _train_body("CloneModel", CLONE_FIELDS, "A clone of a model: its name and what changes (the action "
                                                      "space and sensors cannot).")
 CreateModel = _train_body("CreateModel", CREATE_FIELDS, "A new model: what a clone gives, the training seed, "
-                                                        "DeepRacer's car and the race type.")
+                                                        "DeepRacer's car, the race type and the domain randomisation.")
 
 
 class Resume(BaseModel):

@@ -10,7 +10,7 @@ apart: a board is one track and one race (``"track"`` for time trials, ``"track 
 
 Only evaluations under the **standard rules** rank (:func:`standard_rules`): the console's off-track
 penalty (2 s), the race's own collision penalty, unlimited resets, separate trials, the greedy policy,
-the car the model trained with. An evaluation under other rules stays on its model's page. "Best lap"
+the car the model trained with, the camera's plain look (no domain randomisation). An evaluation under other rules stays on its model's page. "Best lap"
 means one thing everywhere (:func:`best_evaluated_lap`): a model's fastest evaluated lap under the
 standard rules on its own training track and race; a lap of training is a "best training lap".
 """
@@ -103,6 +103,7 @@ def standard_rules(document: dict) -> bool:
     return (settings.get("off_track_penalty", default.off_track_penalty) == default.off_track_penalty
             and settings.get("crash_penalty", default.crash_penalty) == collision
             and settings.get("resets") is None and not settings.get("continuous") and not settings.get("stochastic")
+            and not settings.get("domain_randomization")
             and (trained is None or driven is None or trained == driven))
 
 

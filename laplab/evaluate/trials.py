@@ -68,6 +68,10 @@ class EvaluationSettings:
       car the model trained with (:mod:`laplab.vehicle.physics`).
     - ``race_type``: the race to drive, a :class:`laplab.sim.race_type.RaceType`'s dict (its objects and
       bots; a race of the console sets it); None: the model's own race type.
+    - ``domain_randomization``: the camera sees the track's look with training's domain randomisation
+      (:data:`laplab.sensors.randomize.DOMAIN_RANDOMIZATION`: colour variants of the scene,
+      brightness, contrast, gamma, noise, blur, camera jitter), drawn anew per car and frame from
+      ``seed``; refused for a model without a camera. Such an evaluation does not rank on leaderboards.
     """
 
     track: str | None = None
@@ -84,6 +88,7 @@ class EvaluationSettings:
     max_trial_time: float = 600.0
     physics: str | None = None
     race_type: dict | None = None
+    domain_randomization: bool = False
 
     def __post_init__(self) -> None:
         limit = FORCED_MAX_TRIALS if self.force else CONSOLE_MAX_TRIALS
@@ -113,6 +118,9 @@ class EvaluationSettings:
                 object.__setattr__(self, "physics", resolve_physics(self.physics))
             except PhysicsError as error:
                 raise EvaluationError(str(error), field="physics") from None
+        if not isinstance(self.domain_randomization, bool):
+            raise EvaluationError(f"domain randomization must be true or false, got {self.domain_randomization!r}",
+                                  field="domain_randomization")
         if self.race_type is not None:
             from laplab.sim.race_type import RaceType, RaceTypeError
             try:
@@ -229,7 +237,7 @@ def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = Ev
     if race is None:
         race = getattr(getattr(policy, "config", None), "race_type", None)
     sim = Simulator(track, slots, vehicle, episode, race=race, seed=settings.seed)
-    observations = ObservationBuilder(sim, spec, seed=settings.seed)
+    observations = ObservationBuilder(sim, spec, seed=settings.seed, randomization=randomization_for(settings, spec.sensors))
     act = _actor(policy, settings.stochastic)
     if hasattr(policy, "bind"):
         policy.bind(sim)
@@ -241,6 +249,20 @@ def evaluate_policy(policy: Any, track: Track, settings: EvaluationSettings = Ev
                             model=getattr(policy, "name", None), checkpoint=getattr(policy, "checkpoint", None),
                             race_type=sim.race.to_dict() if sim.race.has_objects else None,
                             obstacles=run.obstacles)
+
+
+def randomization_for(settings: EvaluationSettings, sensors: tuple[str, ...]):
+    """Training's domain randomisation when ``settings`` asks for it (None otherwise) for a model with
+    ``sensors``; refused, naming the setting, for a model that has no camera to randomise."""
+    if not settings.domain_randomization:
+        return None
+    from laplab.env.metadata import CAMERA_SENSORS
+    if not any(sensor in CAMERA_SENSORS for sensor in sensors):
+        raise EvaluationError(
+            f"domain randomization changes what a camera sees, and this model has no camera (sensors: "
+            f"{', '.join(sensors)}): evaluate it without domain randomization", field="domain_randomization")
+    from laplab.sensors.randomize import DOMAIN_RANDOMIZATION
+    return DOMAIN_RANDOMIZATION
 
 
 def save_evaluation(folder: ModelFolder, result: EvaluationResult) -> tuple[str, EvaluationResult]:

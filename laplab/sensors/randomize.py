@@ -65,6 +65,11 @@ class RandomizationParams:
                              f"got {self.texture_variants!r}")
 
 
+DOMAIN_RANDOMIZATION = RandomizationParams(enabled=True)
+"""What ``--domain-randomization`` draws, in training (``laplab train``) and in evaluation
+(``laplab evaluate``): one set of ranges, so an evaluation meets the variations a model trained on."""
+
+
 class FrameRandomization(NamedTuple):
     """Per-car draws, each (N,): photometric changes, pose jitter and texture variant."""
 

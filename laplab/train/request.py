@@ -164,7 +164,9 @@ class TrainRequest:
         """The :class:`~laplab.train.config.TrainConfig` (``base``'s other fields: a clone's source,
         else the defaults); its validators' errors carry this request's field names."""
         from laplab.train.config import TrainConfig
-        return _checked(lambda: replace(base or TrainConfig(), **self.config_values()))
+        config = _checked(lambda: replace(base or TrainConfig(), **self.config_values()))
+        _check_randomization(config)
+        return config
 
     def validate(self):
         """The name (when given), :meth:`to_config`, then the track loaded and the race type checked on
@@ -181,6 +183,17 @@ class TrainRequest:
             exc.field = "race_type"
             raise
         return config
+
+
+def _check_randomization(config) -> None:
+    """A :class:`RequestError` naming ``domain_randomization`` when ``config`` asks for it and its model
+    has no camera (nothing would be randomised: laplab evaluate refuses it alike)."""
+    from laplab.env.metadata import CAMERA_SENSORS
+    sensors = config.model_metadata.sensors
+    if config.domain_randomization and not any(sensor in CAMERA_SENSORS for sensor in sensors):
+        raise RequestError(f"domain randomization changes what a camera sees, and this model has no camera "
+                           f"(sensors: {', '.join(sensors)}): train it without domain randomization, or pick a "
+                           f"camera sensor", field="domain_randomization")
 
 
 def _known_options(cls, data: dict, kind: str, listed: tuple[str, str] | None = None) -> dict:

@@ -144,8 +144,8 @@ class Trainer:
                                   race=config.race_type, seed=config.seed + 1)
         randomization = None
         if config.domain_randomization:
-            from laplab.sensors.randomize import RandomizationParams
-            randomization = RandomizationParams(enabled=True)
+            from laplab.sensors.randomize import DOMAIN_RANDOMIZATION
+            randomization = DOMAIN_RANDOMIZATION
         self.observations = ObservationBuilder(self.sim, self.spec, seed=config.seed, randomization=randomization)
         self.eval_observations = ObservationBuilder(self.eval_sim, self.spec, seed=config.seed + 1)
         self.stepper = EpisodeStepper(self.sim, self.spec.action_space, reward_fn)

@@ -91,6 +91,11 @@ def test_console_in_chromium(console, page, tmp_path):
     headline = page.locator("[data-evaluation] h3").inner_text()  # one trial: no average of 3 laps to show
     assert "average of 3" not in headline and ("best lap" in headline or "no lap completed" in headline), headline
     assert page.inner_text("#stat-phase") == "–"  # the stopped job's last phase is not shown as "now"
+    page.check("#eval-randomize")  # domain randomisation: a STATE model has no camera, refused at once
+    page.click("#evaluate")
+    page.wait_for_function("document.querySelector('#eval-error').textContent.includes('no camera')")
+    assert page.locator("[data-evaluation]").count() == 1
+    page.uncheck("#eval-randomize")
     shot(page, tmp_path, "05-model-evaluated")
 
     with page.expect_download(timeout=180_000) as download:

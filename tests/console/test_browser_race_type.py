@@ -1,5 +1,5 @@
 """The Create form's race type in real Chromium: object avoidance with 2 boxes is what the new model's
-laplab.json records and its page shows."""
+laplab.json records and its page shows; the domain randomisation checkbox is for camera sensors only."""
 
 from __future__ import annotations
 
@@ -16,6 +16,11 @@ def test_create_form_race_type(console, page, tmp_path):  # noqa: F811
     page.click("text=Create model")
     page.wait_for_selector("[data-track='oval']")
     page.fill("#name", "browser-oa")
+    assert page.is_disabled("#domain-randomization")  # laplab's default sensor, STATE, has no camera
+    page.select_option("#sensor", "FRONT_FACING_CAMERA")
+    page.check("#domain-randomization")
+    page.select_option("#sensor", "STATE")  # unticked again: a STATE model would be refused
+    assert page.is_disabled("#domain-randomization") and not page.is_checked("#domain-randomization")
     assert page.is_hidden("#race-objects")
     page.check("input[name='race'][value='object_avoidance']")
     assert page.is_visible("#race-objects") and page.is_hidden("#race-bots")
@@ -34,3 +39,4 @@ def test_create_form_race_type(console, page, tmp_path):  # noqa: F811
     assert "object avoidance: 2 boxes" in page.inner_text("#config")
     detail = console.admin.get("/api/models/browser-oa").json()
     assert detail["config"]["race_type"]["kind"] == "object_avoidance" and detail["config"]["race_type"]["objects"] == 2
+    assert detail["config"]["domain_randomization"] is False and "Domain randomisation\noff" in page.inner_text("#config")

@@ -8,6 +8,7 @@ import time
 
 import pytest
 
+from laplab.env.metadata import ModelMetadata
 from laplab.errors import UserError
 from laplab.evaluate.trials import EvaluateRequest
 from laplab.train.request import DEFAULT_MAX_TIME_S, ExportRequest, TrainRequest
@@ -22,7 +23,8 @@ def _request_error(**values) -> UserError:
 @pytest.mark.parametrize("values", [{"max_time_s": -5}, {"max_episodes": 0}, {"physics": "seven"},
                                     {"workers": 0}, {"max_time_s": 0},
                                     {"race_type": {"kind": "object_avoidance", "objects": 99}},
-                                    {"hyperparameters": {"batch_size": -3}}])
+                                    {"hyperparameters": {"batch_size": -3}},
+                                    {"domain_randomization": True}])  # laplab's default sensor: STATE
 def test_a_bad_value_is_the_request_message_next_to_the_request_field(console, values):
     answer = console.admin.post("/api/models", json={"name": "m-bad", **values})
     assert answer.status_code == 400, answer.text
@@ -74,6 +76,33 @@ def test_evaluation_and_export_errors_carry_their_request_field(console, make_mo
     assert answer.status_code == 400 and answer.json()["detail"]["field"] == "off_track_penalty", answer.text
     answer = console.admin.post("/api/models/request-fields/exports", json={"checkpoint": ""})
     assert answer.status_code == 400 and answer.json()["detail"]["field"] == "checkpoint", answer.text
+
+
+def test_a_randomised_evaluation_of_a_model_without_a_camera_is_refused_at_once(console, make_model):
+    make_model("randomize-state")  # laplab's default sensor: STATE
+    answer = console.admin.post("/api/models/randomize-state/evaluations", json={"domain_randomization": True})
+    assert answer.status_code == 400, answer.text
+    detail = answer.json()["detail"]
+    assert detail["field"] == "domain_randomization" and "no camera (sensors: STATE)" in detail["message"]
+    assert console.admin.get("/api/models/randomize-state/evaluations").json() == []  # no job was queued
+
+
+def test_a_camera_model_created_with_domain_randomization_trains_under_it(console):
+    camera = {**ModelMetadata().to_dict(), "sensor": ["FRONT_FACING_CAMERA"]}
+    tiny = {"num_episodes_between_training": 2, "batch_size": 32, "num_epochs": 3}
+    created = console.admin.post("/api/models", json={"name": "randomized-camera", "model_metadata": camera,
+                                                      "hyperparameters": tiny, "domain_randomization": True,
+                                                      "max_time_s": 30})
+    assert created.status_code == 201, created.text
+    job = [j for j in console.app.state.store.jobs(kind=("train",)) if j.model.endswith("randomized-camera")][-1]
+    assert job.params["domain_randomization"] is True  # what the worker builds its TrainRequest from
+    deadline = time.monotonic() + 300  # started: the worker wrote its laplab.json
+    while console.admin.get("/api/models/randomized-camera").json()["status"] == "queued" and time.monotonic() < deadline:
+        time.sleep(0.2)
+    console.admin.post("/api/models/randomized-camera/stop")
+    console.wait_for(console.admin, "randomized-camera", ("ready", "failed", "interrupted"), timeout_s=300)
+    saved = console.admin.get("/api/models/randomized-camera").json()["config"]
+    assert saved["domain_randomization"] is True and saved["model_metadata"]["sensor"] == ["FRONT_FACING_CAMERA"]
 
 
 def test_the_create_form_shows_the_request_default(console):

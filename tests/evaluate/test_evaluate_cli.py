@@ -102,3 +102,11 @@ def test_stochastic_evaluation_repeats_with_its_seed(home):
     assert first.trials == second.trials
     assert np.array_equal(first.trace["X"], second.trace["X"])
     assert not (len(first.trace["X"]) == len(other.trace["X"]) and np.array_equal(first.trace["X"], other.trace["X"]))
+
+
+def test_domain_randomization_of_a_model_without_a_camera_is_refused_and_writes_nothing(home, capsys):
+    before = model_folder(MODEL).list_evaluations()
+    assert main(["evaluate", MODEL, "--domain-randomization", *QUICK]) == 2
+    error = capsys.readouterr().err
+    assert "--domain-randomization" in error and "no camera (sensors: STATE)" in error
+    assert model_folder(MODEL).list_evaluations() == before

@@ -195,3 +195,27 @@ def test_a_console_resume_trusts_the_reward_only_inside_the_sandbox(tmp_path, mo
         with pytest.raises(Built):
             worker._train(worker.JobFiles(tmp_path), spec)
     assert asked == [True, False]
+
+
+def test_domain_randomization_without_a_camera_is_refused_alike_at_every_door(model_files):
+    with pytest.raises(UserError) as from_request:  # the console's API and the worker build this
+        TrainRequest.from_mapping({"domain_randomization": True}).validate()
+    with pytest.raises(UserError) as from_api:
+        api.training_request("m", model_files, domain_randomization=True)
+    with pytest.raises(UserError) as from_cli:
+        _cli("--domain-randomization")
+    assert from_request.value.field == from_api.value.field == "domain_randomization"
+    assert "no camera (sensors: STATE)" in str(from_request.value) and str(from_request.value) == str(from_api.value)
+    assert from_cli.value.field == "--domain-randomization"
+    assert str(from_cli.value) == f"--domain-randomization: {from_request.value}"
+
+
+def test_domain_randomization_of_a_camera_model_reaches_the_config_from_every_door(tmp_path):
+    files = api.write_model_files(tmp_path, REWARD, ACTIONS, {"batch_size": 32}, sensor=["FRONT_FACING_CAMERA"])
+    request = api.training_request("m", files, domain_randomization=True)
+    assert request.domain_randomization and request.to_config().domain_randomization
+    from laplab.api import _train_args
+    again = train_request(build_parser().parse_args(["train", *_train_args(request, files)]), "m")
+    assert again.domain_randomization and again.to_config().domain_randomization
+    plain = api.training_request("m", files)
+    assert "--domain-randomization" not in _train_args(plain, files) and not plain.to_config().domain_randomization

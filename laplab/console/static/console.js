@@ -151,6 +151,10 @@ const Console = (() => {
 
     const meta = config?.model_metadata || defaults.metadata;
     $("#sensor").value = meta.sensor.join("+"); $("#network").value = meta.neural_network; $("#algorithm").value = meta.training_algorithm;
+    const randomize = $("#domain-randomization"), hasCamera = () => $("#sensor").value.includes("CAMERA");
+    randomize.checked = !!config?.domain_randomization;
+    const renderRandomize = () => { randomize.disabled = !!source || !hasCamera(); if (!source && !hasCamera()) randomize.checked = false; };
+    $("#sensor").addEventListener("change", renderRandomize); renderRandomize();
     const tbody = $("#actions tbody");
     const picture = () => drawActions($("#action-picture"), actions, continuous() ? {steer: [+$("#steer-low").value, +$("#steer-high").value], speed: [+$("#speed-low").value, +$("#speed-high").value]} : null);
     const continuous = () => document.querySelector('input[name="astype"]:checked').value === "continuous";
@@ -218,7 +222,8 @@ const Console = (() => {
       ev.preventDefault(); $("#submit").disabled = true;
       const body = {name: $("#name").value.trim(), description: $("#description").value, track: trackName, reward_function: reward.value,
                     hyperparameters: hyper(), max_time_s: +$("#max-time").value * 60};
-      if (!source) { body.model_metadata = metadata(); body.physics = $("#physics").value; body.race_type = raceType(); }
+      if (!source) { body.model_metadata = metadata(); body.physics = $("#physics").value; body.race_type = raceType();
+                     body.domain_randomization = randomize.checked; }
       try { const m = await api("POST", source ? `/api/models/${source.name}/clone` : "/api/models", body); location.href = `/models/${m.name}`; }
       catch (e) { showErrors(e); $("#submit").disabled = false; }
     });
@@ -315,7 +320,7 @@ const Console = (() => {
       const cfg = model.config || {}; const meta = cfg.model_metadata || {};
       $("#config").replaceChildren(...[["Track", model.track], ["Race type", model.race_type || "time trial"], ["Sensor", (model.sensor || []).join(", ")], ["Algorithm", model.algorithm],
         ["Action space", meta.action_space_type === "continuous" ? "continuous" : `${(meta.action_space || []).length} discrete actions`],
-        ["Car", cfg.vehicle || "–"], ["Max time", duration(cfg.max_time_s)], ["Created", when(model.created)], ["Owner", model.owner], ["Description", model.description || "–"]]
+        ["Car", cfg.vehicle || "–"], ["Domain randomisation", cfg.domain_randomization ? "on" : "off"], ["Max time", duration(cfg.max_time_s)], ["Created", when(model.created)], ["Owner", model.owner], ["Description", model.description || "–"]]
         .concat(cfg.cloned_from ? [["Cloned from", cfg.cloned_from]] : [])
         .map(([k, v]) => el("div", {}, el("span", {}, k), v ?? "–")));
       $("#reward-source").textContent = model.reward_function || "";
@@ -376,7 +381,7 @@ const Console = (() => {
     async function loadEvaluations() {
       const list = await api("GET", `/api/models/${name}/evaluations`);
       $("#evaluations").replaceChildren(...list.slice().reverse().map(ev => el("div", {class: "evaluation", "data-evaluation": ev.id},
-        el("h3", {}, `Evaluation ${ev.id} `, badge(ev.status), ev.track ? ` on ${ev.track}` : "", evaluationHeadline(ev.summary)),
+        el("h3", {}, `Evaluation ${ev.id} `, badge(ev.status), ev.track ? ` on ${ev.track}` : "", ev.settings?.domain_randomization ? " · domain randomisation" : "", evaluationHeadline(ev.summary)),
         ev.error ? el("p", {class: "field-error"}, ev.error) : "",
         ev.trials.length ? el("table", {class: "grid compact"}, el("thead", {}, el("tr", {}, ...["Trial", "Time", "Progress %", "Status", "Off-track", "Gap to optimal"].map(h => el("th", {class: h === "Status" || h === "Trial" ? "" : "num"}, h)))),
           el("tbody", {}, ...ev.trials.map((t, i) => el("tr", {}, el("td", {}, i + 1), el("td", {class: "num"}, lap(t.lap_time)), el("td", {class: "num"}, fmt(t.progress, 1)),
@@ -389,7 +394,8 @@ const Console = (() => {
       ev.preventDefault(); $("#eval-error").textContent = "";
       const resets = $("#eval-resets").value.trim();
       try { await api("POST", `/api/models/${name}/evaluations`, {track: $("#eval-track").value, trials: +$("#eval-trials").value,
-              off_track_penalty: +$("#eval-penalty").value, resets: resets === "" ? null : +resets, video: $("#eval-video").checked});
+              off_track_penalty: +$("#eval-penalty").value, resets: resets === "" ? null : +resets, video: $("#eval-video").checked,
+              domain_randomization: $("#eval-randomize").checked});
             toast("evaluation queued"); loadEvaluations(); }
       catch (e) { $("#eval-error").textContent = e.message; }
     });
