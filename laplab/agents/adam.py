@@ -154,7 +154,11 @@ def _scalar_dtype() -> torch.dtype:
 
 
 def _cast(value: Any, p: torch.Tensor, key: str, fused: bool) -> Any:
-    """``torch.optim.Optimizer.load_state_dict``'s rule for one state entry."""
+    """``torch.optim.Optimizer.load_state_dict``'s rule for one state entry (and ``Adam.__setstate__``'s
+    for a ``step`` saved as a number by torch before 1.12)."""
+    if key == "step" and isinstance(value, (int, float)):
+        return (torch.tensor(float(value), dtype=torch.float32, device=p.device) if fused
+                else torch.tensor(float(value), dtype=_scalar_dtype()))
     if not isinstance(value, torch.Tensor):
         return value
     if key == "step":

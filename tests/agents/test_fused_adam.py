@@ -100,6 +100,10 @@ def test_loading_casts_as_torch_does_and_refuses_other_parameters():
     ours.load_state_dict(torch_state.state_dict())
     for values in ours.state.values():
         assert values["exp_avg"].dtype == torch.float64 and values["step"].dtype == torch.float32
+    old_style = torch_state.state_dict()
+    old_style["state"] = {number: {**values, "step": 1} for number, values in old_style["state"].items()}
+    ours.load_state_dict(old_style)  # torch before 1.12 saved the step as a number
+    assert all(_same_bits(values["step"], torch.tensor(1.0)) for values in ours.state.values())
     with pytest.raises(ValueError, match="parameter groups"):
         FusedAdam(list(model.parameters())[:2], lr=1e-3).load_state_dict(torch_state.state_dict())
 
