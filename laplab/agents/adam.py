@@ -28,9 +28,10 @@ from torch.optim.adam import adam
 
 
 class FusedAdam:
-    """Adam over one group of parameters, the fused kernel by default (``torch.optim.Adam``'s
-    ``fused=True``: one kernel for all parameters; on CPU 1.6x faster camera-network steps than the
-    per-tensor loop). ``lr``: learning rate; ``eps``: added to the root of the second moment."""
+    """Adam over one group of parameters with torch's fused kernel (``torch.optim.Adam``'s ``fused=True``:
+    one kernel for all parameters; on CPU 1.6x faster camera-network steps than the per-tensor loop).
+    A loaded state's options replace these, as in ``torch.optim.Adam``. ``lr``: learning rate;
+    ``eps``: added to the root of the second moment."""
 
     def __init__(self, params: Iterable[torch.Tensor], lr: float, eps: float = 1e-8,
                  betas: tuple[float, float] = (0.9, 0.999)):
