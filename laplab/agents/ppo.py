@@ -23,6 +23,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from laplab.agents.adam import FusedAdam
 from laplab.agents.hyperparameters import Hyperparameters
 from laplab.agents.losses import (clipped_surrogate_loss, compute_gae, entropy_bonus,
                                   policy_change_stats, value_loss)
@@ -118,8 +119,8 @@ class PPOLearner:
         self.device = torch.device(device)
         self.model = ActorCritic(observation_space, self.action_spec, network_name).to(self.device)
         self.precision = set_compute_precision(self.model, precision)  # "auto": bfloat16 camera trunks where native
-        # fused: one kernel for all parameters, 1.6x faster camera-network steps on CPU than the per-tensor loop
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=hyperparameters.lr, eps=ADAM_EPSILON, fused=True)
+        # torch.optim.Adam(fused=True)'s update and state dicts, without its torch._dynamo import (laplab.agents.adam)
+        self.optimizer = FusedAdam(self.model.parameters(), lr=hyperparameters.lr, eps=ADAM_EPSILON)
         self.rng = np.random.default_rng(seed)
         self.env_steps = 0  # environment steps acted with exploration (drives epsilon)
         self.iterations = 0

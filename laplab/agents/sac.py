@@ -31,6 +31,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from laplab.agents.adam import FusedAdam
 from laplab.agents.hyperparameters import Hyperparameters
 from laplab.agents.losses import sac_actor_loss, sac_critic_target
 from laplab.agents.networks import (DEFAULT_NETWORK, ActionSpec, PolicyStep, action_spec_from, has_convolutions,
@@ -83,7 +84,7 @@ class SACLearner:
         self.target_critic = copy.deepcopy(self.critic).requires_grad_(False)
         self.shared_trunk = False
         self._share_trunk(has_convolutions(self.critic.trunk) if shared_trunk is None else shared_trunk)
-        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=hyperparameters.lr, fused=True)
+        self.critic_optimizer = FusedAdam(self.critic.parameters(), lr=hyperparameters.lr)
         self.buffer = ReplayBuffer(buffer_capacity, observation_space, dim)
         self.rng = np.random.default_rng(seed)
         self.gradient_steps = 0
@@ -264,7 +265,7 @@ class SACLearner:
         trained = ([*self.actor.head.parameters(), *self.actor.mean.parameters(), *self.actor.log_std.parameters()]
                    if shared
                    else list(self.actor.parameters()))
-        self.actor_optimizer = torch.optim.Adam(trained, lr=self.hyperparameters.lr, fused=True)
+        self.actor_optimizer = FusedAdam(trained, lr=self.hyperparameters.lr)
 
     def _config(self) -> dict[str, Any]:
         return {"algorithm": "sac", "gradient_steps": self.gradient_steps, "shared_trunk": self.shared_trunk,

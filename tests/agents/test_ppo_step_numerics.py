@@ -100,7 +100,13 @@ def test_the_adam_step_runs_on_all_of_the_learners_threads(restore_torch_threads
     learner = PPOLearner(CAMERA, CONTINUOUS, Hyperparameters(batch_size=32, num_epochs=3), seed=0, num_threads=2)
     rollout = _rollout(learner, np.random.default_rng(2))
     seen = []
-    learner.optimizer.register_step_pre_hook(lambda *_: seen.append(torch.get_num_threads()))
+    adam_step = learner.optimizer.step
+
+    def step_seen():  # the threads torch has as each Adam step starts
+        seen.append(torch.get_num_threads())
+        adam_step()
+
+    learner.optimizer.step = step_seen
     learner.update(rollout)
     assert seen == [2] * 6
     assert torch.get_num_threads() == 2

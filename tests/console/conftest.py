@@ -50,7 +50,7 @@ class RunningConsole:
             model = client.get(f"/api/models/{name}").json()
             if model["status"] in statuses:
                 return model
-            time.sleep(0.5)
+            time.sleep(0.2)
         raise AssertionError(f"{name} did not reach {statuses} within {timeout_s} s: {model}")
 
 

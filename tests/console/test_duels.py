@@ -28,7 +28,7 @@ def wait_duel(client, name: str, job_id: int, timeout_s: float = 300.0) -> dict:
     deadline = time.monotonic() + timeout_s
     while (race := client.get(f"/api/models/{name}/duels/{job_id}").json())["status"] in ("queued", "running"):
         assert time.monotonic() < deadline, race
-        time.sleep(0.5)
+        time.sleep(0.2)
     return race
 
 

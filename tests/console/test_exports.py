@@ -15,7 +15,7 @@ def wait_export(client, name: str, job_id: int, timeout_s: float = 400.0) -> dic
     deadline = time.monotonic() + timeout_s
     while (export := client.get(f"/api/models/{name}/exports/{job_id}").json())["status"] in ("queued", "running"):
         assert time.monotonic() < deadline, export
-        time.sleep(0.5)
+        time.sleep(0.2)
     return export
 
 

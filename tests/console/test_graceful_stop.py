@@ -30,7 +30,7 @@ def test_a_server_stop_interrupts_jobs_and_resume_grants_the_time_left(tmp_path,
         deadline = time.monotonic() + 240
         while not console.admin.get("/api/models/stopped-by-server").json()["iterations"]:
             assert time.monotonic() < deadline, "no iteration within 240 s"
-            time.sleep(0.5)
+            time.sleep(0.2)
     store = JobStore(tmp_path / "laplab.db")
     try:
         job = store.job(job_id)

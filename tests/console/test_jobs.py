@@ -83,7 +83,7 @@ def test_train_watch_stop_evaluate_leaderboard_download_import_clone(console):
     deadline = time.monotonic() + 240
     while (evaluation := admin.get(f"/api/models/live-model/evaluations/{job_id}").json())["status"] in ("queued", "running"):
         assert time.monotonic() < deadline
-        time.sleep(0.5)
+        time.sleep(0.2)
     assert evaluation["status"] == "done", evaluation
     assert len(evaluation["trials"]) == 2
     for trial in evaluation["trials"]:

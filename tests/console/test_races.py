@@ -37,7 +37,7 @@ def wait_done(client, race_id: int, count: int, timeout_s: float = 400.0) -> lis
         subs = client.get(f"/api/races/{race_id}/submissions").json()
         if len(subs) >= count and all(s["state"] in ("done", "failed") for s in subs):
             return subs
-        time.sleep(1.0)
+        time.sleep(0.2)
     raise AssertionError(f"submissions not evaluated in {timeout_s} s: {subs}")
 
 

@@ -45,7 +45,7 @@ def wait(client, name, predicate, timeout_s=300):
         if predicate(model):
             return model
         assert time.monotonic() < deadline, model
-        time.sleep(0.5)
+        time.sleep(0.2)
 
 
 def job_pids(database: Path) -> list[int]:
