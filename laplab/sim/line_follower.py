@@ -1,8 +1,8 @@
 """Drive a race line in the simulator: a batched curvature-feedforward controller and lap runs.
 
 The simulator's car is a kinematic bicycle whose path curvature follows its wheels' angle ``delta``:
-``kappa = g tan(delta + delta_0) / L / (1 + u v^2)``, capped at ``a_lat / v^2`` (:meth:`VehicleParams.curvature`:
-gain ``g``, offset ``delta_0``, wheelbase ``L``, understeer ``u``, grip ``a_lat``). DeepRacer's cars answer
+``kappa = g tan(delta + delta_off) / L / (1 + u v^2)``, capped at ``a_lat / v^2`` (:meth:`VehicleParams.curvature`:
+gain ``g``, offset ``delta_off``, wheelbase ``L``, understeer ``u``, grip ``a_lat``). DeepRacer's cars answer
 late: the previous command still acts for ``action_delay`` (``d``) of each 1/15 s decision ``dt``, the
 wheels follow the saturated command ``sigma tanh(c / sigma)`` with a first-order lag of time constant
 ``tau``, the speed follows ``speed_ratio`` (``r``) times its command with a lag ``tau_v``. :class:`LineFollower`
@@ -18,7 +18,7 @@ makes up for each of these from the car's own :class:`VehicleParams`, for N cars
    car's curvature law and its lag (the wheels reach ``delta_T`` by the decision's end, then a new command)::
 
        kappa_T = kappa_line(s + curvature_preview * v dt) - lateral_gain * e - heading_gain * psi
-       delta_T = atan(kappa_T (1 + u v^2) L / g) - delta_0
+       delta_T = atan(kappa_T (1 + u v^2) L / g) - delta_off
        delta_c = delta_0 + (delta_T - delta_0) / (1 - exp(-dt / tau))        (delta_T itself when tau = 0)
        steer   = sigma atanh(delta_c / sigma), clipped to the steering lock
 
