@@ -94,10 +94,8 @@ def raceline_command(args: argparse.Namespace) -> int:
         return 0
     drive = drive_line(track, line.points, line.speeds, np.array([True, False]), vehicle)
     standing = standing_start_lap_time(line.arc_length, line.speeds, vehicle.max_acceleration)
-    print("driven in the simulator (LineFollower, curvature feedforward, from the line's first point):")
-    if vehicle.response_steps > 1.0:
-        print(f"  note: {vehicle.name} answers a command {vehicle.response_steps:.1f} steps late; the follower, "
-              f"made for the line, may leave a line that uses every centimetre of the track")
+    print("driven in the simulator (LineFollower, curvature feedforward through the car's delay and lags, "
+          "from the line's first point):")
     finished = True
     for car, (label, predicted) in enumerate((("flying lap    ", line.lap_time), ("standing start", standing))):
         if drive.status[car] != LAP_COMPLETE:

@@ -1,29 +1,45 @@
 """Drive a race line in the simulator: a batched curvature-feedforward controller and lap runs.
 
-The simulator's car is a kinematic bicycle whose path curvature follows the steering
-(:meth:`VehicleParams.curvature`, after the car's delay and lag). :class:`LineFollower` therefore
-steers with the line's own curvature (feedforward) plus a small correction for the distance and angle
-to the line:
+The simulator's car is a kinematic bicycle whose path curvature follows its wheels' angle ``delta``:
+``kappa = g tan(delta + delta_off) / L / (1 + u v^2)``, capped at ``a_lat / v^2`` (:meth:`VehicleParams.curvature`:
+gain ``g``, offset ``delta_off``, wheelbase ``L``, understeer ``u``, grip ``a_lat``). DeepRacer's cars answer
+late: the previous command still acts for ``action_delay`` (``d``) of each 1/15 s decision ``dt``, the
+wheels follow the saturated command ``sigma tanh(c / sigma)`` with a first-order lag of time constant
+``tau``, the speed follows ``speed_ratio`` (``r``) times its command with a lag ``tau_v``. :class:`LineFollower`
+makes up for each of these from the car's own :class:`VehicleParams`, for N cars at once:
 
-    correction = - lateral_gain * e - heading_gain * psi
-    kappa_cmd  = kappa_line(s + (curvature_preview + response_steps) * v dt) + correction
-    steer      = VehicleParams.steering_for_curvature(kappa_cmd, v), clipped to the steering limit
-    speed      = min(v_line(s_v), sqrt(a_lat / |kappa_line(s_v) + correction|)),  s_v = s + speed_preview * v dt
+1. Delay: each car is carried through ``d dt`` on its previous command (:func:`laplab.vehicle.dynamics.step`);
+   the new command acts from that pose, speed ``v`` and wheel angle ``delta_0`` on, for one ``dt``.
+2. Errors there: ``s`` (m) the arc length of the origin's projection onto the line, ``e`` (m) its
+   signed distance from the line (left positive), ``psi = yaw + atan(a kappa_line(s)) - heading_line(s)``
+   (rad): the origin lies ``a = -pivot_offset`` ahead of the point that moves along the yaw, so on a
+   curve its path runs ``atan(a kappa)`` left of the yaw.
+3. Steering, the line's curvature half way through the decision plus a correction, inverted through the
+   car's curvature law and its lag (the wheels reach ``delta_T`` by the decision's end, then a new command)::
 
-where ``s`` (m) is the arc length of the origin's projection onto the line, ``e`` (m) its signed
-distance from the line (left positive), ``psi`` (rad) the yaw minus the line's (interpolated) heading
-there, ``v`` (m/s) the measured speed, ``dt`` the 1/15 s decision and ``a_lat`` the car's grip.
-A command is held for a whole decision: the steering should match the line's curvature half way
-through it, and the speed the line's speed where the step ends. In arc length the error obeys
-``e'' + heading_gain e' + lateral_gain e = 0`` (small angles), a damped oscillator that settles within
-a metre or two. The speed cap matters because a race line's speeds use all the grip: at the limit a
-correction on top saturates the tyres (the car understeers and drifts wide) unless the car slows
-to where the curvature it then needs fits within the grip. Pure pursuit, by contrast, aims at a
-chord of the line and cuts every corner.
+       kappa_T = kappa_line(s + curvature_preview * v dt) - lateral_gain * e - heading_gain * psi
+       delta_T = atan(kappa_T (1 + u v^2) L / g) - delta_off
+       delta_c = delta_0 + (delta_T - delta_0) / (1 - exp(-dt / tau))        (delta_T itself when tau = 0)
+       steer   = sigma atanh(delta_c / sigma), clipped to the steering lock
+
+4. Speed, the line's speed where the decision is three quarters done, capped where the correction would
+   need more grip, the speed lag inverted the same way over that time, and the speed ratio divided out::
+
+       v_T   = min(v_line(s_v), sqrt(a_lat / |kappa_line(s_v) + correction|)),  s_v = s + speed_preview * v dt
+       speed = (v + (v_T - v) / (1 - exp(-speed_preview dt / tau_v))) / r, clipped to [0, max_speed]
+
+For laplab's classic car (no delay, no lags, gain 1, ratio 1) this is plain curvature feedforward. In arc
+length the error obeys ``e'' + heading_gain e' + lateral_gain e = 0`` (small angles), a damped oscillator
+that settles within a metre or two. The speed cap matters because a race line's speeds use all the grip:
+at the limit a correction on top saturates the tyres (the car understeers and drifts wide) unless the car
+slows to where the curvature it then needs fits within the grip. Called without the car's wheel angle and
+previous commands, :meth:`LineFollower.act` takes the car as settled and only reads the curvature
+``response_steps`` further ahead. Pure pursuit, by contrast, aims at a chord of the line and cuts every corner.
 
 :func:`drive_line` starts cars on the line's first point (at rest or at the line's speed there) and
 drives one lap; :func:`laplab.track.speed_profile.standing_start_lap_time` is the lap time the
-line's speed plan predicts when the car starts from rest.
+line's speed plan predicts when the car starts from rest. The follower needs no margin: it drives each
+car's own line at the line's speeds (docs/physics.md, "The race line"; figures in BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -36,6 +52,8 @@ import numpy as np
 from laplab.sim.simulator import Simulator
 from laplab.sim.state import IN_PROGRESS, EpisodeParams
 from laplab.track.geometry import Track
+from laplab.vehicle.dynamics import CarState
+from laplab.vehicle.dynamics import step as step_car
 from laplab.vehicle.params import DEEPRACER, VehicleParams
 
 
@@ -51,9 +69,9 @@ class LineFollowerParams:
     """
 
     lateral_gain: float = 4.0
-    heading_gain: float = 1.5
+    heading_gain: float = 2.0
     curvature_preview: float = 0.5
-    speed_preview: float = 1.0
+    speed_preview: float = 0.75
     grip_speed_cap: bool = True
 
     def __post_init__(self) -> None:
@@ -115,6 +133,12 @@ class LineFollower:
         chord = np.roll(self.points, -1, axis=0) - np.roll(self.points, 1, axis=0)
         self.heading = np.arctan2(chord[:, 1], chord[:, 0])
         self._heading_step = np.mod(np.roll(self.heading, -1) - self.heading + np.pi, 2.0 * np.pi) - np.pi
+        self._pivot_lead = -vehicle.pivot_offset  # m the origin lies ahead of the point moving along the yaw
+        # The car through its action delay on the previous command: the same dynamics over that part of a
+        # step, on the simulator's own sub-step grid (3 of v6's 4 sub-steps).
+        self._delay_params = None if vehicle.action_delay <= 0 else vehicle.with_(
+            decision_hz=vehicle.decision_hz / vehicle.action_delay, action_delay=0.0,
+            substeps=max(1, round(vehicle.action_delay * vehicle.substeps)))
 
     @property
     def start_pose(self) -> np.ndarray:
@@ -149,22 +173,62 @@ class LineFollower:
     def _curvature_at(self, arc: np.ndarray) -> np.ndarray:
         return np.interp(np.mod(arc, self.length), self.arc, self._closed_curvature)
 
-    def act(self, poses: np.ndarray, speeds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def act(self, poses: np.ndarray, speeds: np.ndarray, steer: np.ndarray | None = None,
+            previous: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Commands for poses (N, 3) of the model origins and measured speeds (N,) m/s:
-        (steering angle (N,) rad, speed (N,) m/s)."""
+        (steering angle (N,) rad, speed (N,) m/s).
+
+        ``steer`` (N,) rad: the wheels' actual angle (the simulator's ``state.steer``, after the
+        saturation); ``previous``: the last decision's (steering, speed) commands, each (N,). With both,
+        the car is first carried through the action delay on its previous command, and the steering and
+        speed lags are made up (module docstring); without them the car is taken as settled."""
         p, v = self.params, self.vehicle
-        s, lateral, psi = self.project(poses)
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
         speeds = np.maximum(np.asarray(speeds, dtype=np.float64).reshape(-1), 0.0)
-        step = speeds * v.dt
+        known = steer is not None and previous is not None
+        preview = p.curvature_preview * v.dt
+        if known:
+            steer = np.asarray(steer, dtype=np.float64).reshape(-1)
+            if self._delay_params is not None:
+                state = step_car(CarState(poses[:, 0], poses[:, 1], poses[:, 2], speeds, steer),
+                                 previous[0], previous[1], self._delay_params)
+                poses = np.column_stack([state.x, state.y, state.yaw])
+                speeds, steer = np.maximum(state.speed, 0.0), state.steer
+        else:
+            preview += v.response_steps * v.dt
+        s, lateral, psi = self.project(poses)
+        psi = psi + np.arctan(self._pivot_lead * self._curvature_at(s))  # the origin's path runs wide of the yaw
         correction = -p.lateral_gain * lateral - p.heading_gain * psi
-        kappa = self._curvature_at(s + (p.curvature_preview + v.response_steps) * step) + correction
-        steer = v.steering_for_curvature(kappa, speeds)
-        speed_arc = s + p.speed_preview * step
+        kappa = self._curvature_at(s + preview * speeds) + correction
+        wheel = self.wheel_for_curvature(kappa, speeds)
+        if known and v.steering_time_constant > 0:
+            reach = 1.0 - math.exp(-v.dt / v.steering_time_constant)  # of the way to the command in a step
+            wheel = steer + (wheel - steer) / reach
+        command = self.command_for_wheel(wheel)
+
+        speed_arc = s + p.speed_preview * v.dt * speeds
         speed = np.interp(np.mod(speed_arc, self.length), self.arc, self._closed_speeds)
         if p.grip_speed_cap:
             needed = np.abs(self._curvature_at(speed_arc) + correction)
             speed = np.minimum(speed, np.sqrt(v.max_lateral_acceleration / np.maximum(needed, 1e-9)))
-        return steer, speed
+        if known and v.speed_time_constant > 0 and p.speed_preview > 0:
+            reach = 1.0 - math.exp(-p.speed_preview * v.dt / v.speed_time_constant)
+            speed = speeds + (speed - speeds) / reach
+        return command, np.clip(speed / v.speed_ratio, 0.0, v.max_speed)
+
+    def wheel_for_curvature(self, kappa: np.ndarray, speeds: np.ndarray) -> np.ndarray:
+        """Wheel angle (rad, after the saturation) whose path curvature is ``kappa`` at ``speeds``."""
+        v = self.vehicle
+        return np.arctan(kappa * (1.0 + v.understeer * speeds * speeds) * v.wheelbase / v.steering_gain) \
+            - v.steering_offset
+
+    def command_for_wheel(self, wheel: np.ndarray) -> np.ndarray:
+        """Steering command (rad, within the lock) whose saturated target is the wheel angle ``wheel``."""
+        v = self.vehicle
+        if v.steering_saturation_deg > 0:
+            saturation = math.radians(v.steering_saturation_deg)
+            wheel = saturation * np.arctanh(np.clip(wheel / saturation, -0.999999, 0.999999))
+        return np.clip(wheel, -v.max_steering, v.max_steering)
 
 
 @dataclass(frozen=True)
@@ -191,8 +255,10 @@ def start_on_line(sim: Simulator, cars: np.ndarray, follower: LineFollower, flyi
     flying = np.broadcast_to(np.asarray(flying, dtype=bool), cars.shape)
     sim.reset(np.isin(np.arange(sim.num_cars), cars), ndist=0.0)
     speed = np.where(flying, follower.speeds[0], 0.0)
-    steer = np.where(flying, sim.vehicle.steering_for_curvature(follower.curvature[0], follower.speeds[0]), 0.0)
-    sim.place(cars, np.tile(follower.start_pose, (cars.size, 1)), speed=speed, steer=steer)
+    wheel = np.where(flying, follower.wheel_for_curvature(follower.curvature[0], follower.speeds[0]), 0.0)
+    command = np.where(flying, follower.command_for_wheel(wheel), 0.0)
+    sim.place(cars, np.tile(follower.start_pose, (cars.size, 1)), speed=speed, steer=wheel, cmd_steer=command,
+              cmd_speed=speed / sim.vehicle.speed_ratio)
     st = sim.state
     st.start_arc[cars], st.travel[cars], st.progress[cars] = st.arc[cars], 0.0, 0.0
 
@@ -211,7 +277,7 @@ def drive_line(track: Track, points: np.ndarray, speeds: np.ndarray, flying: np.
     st = sim.state
     max_error, min_wheels = np.zeros(flying.size), st.wheels_on.copy()
     while (st.status == IN_PROGRESS).any():
-        steer, speed = follower.act(sim.poses(), st.speed)
+        steer, speed = follower.act(sim.poses(), st.speed, st.steer, (st.cmd_steer, st.cmd_speed))
         stepped = sim.step(steer, speed)
         _, lateral, _ = follower.project(sim.poses())
         max_error = np.where(stepped, np.maximum(max_error, np.abs(lateral)), max_error)

@@ -70,13 +70,14 @@ def test_second_run_reads_the_cache(home, tmp_path, capsys, monkeypatch):
     assert number_after("optimal lap time", first) == number_after("optimal lap time", second)
 
 
-def test_drive_reproduces_the_predicted_lap_time(home, tmp_path, capsys):
-    # laplab's classic car follows a line within centimetres (DeepRacer's cars answer late: see the note)
-    assert main(["raceline", "technical@reversed", "--fast", "--drive", "--physics", "classic",
+@pytest.mark.parametrize("physics, tolerance", [("classic", 0.03), ("6", 0.035)])
+def test_drive_reproduces_the_predicted_lap_time(home, tmp_path, capsys, physics, tolerance):
+    # laplab's classic car follows a line within centimetres; DeepRacer's answer late, and the follower makes up for it
+    assert main(["raceline", "technical@reversed", "--fast", "--drive", "--physics", physics,
                  "--out", str(tmp_path)]) == 0
     text = capsys.readouterr().out
     ratios = [float(r) for r in re.findall(r"= ([\d.]+) x predicted", text)]
-    assert len(ratios) == 2 and all(abs(r - 1.0) <= 0.03 for r in ratios), text
+    assert len(ratios) == 2 and all(0.995 <= r <= 1.0 + tolerance for r in ratios), text
     assert (tmp_path / "technical-reversed-raceline.npy").is_file()
 
 
