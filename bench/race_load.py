@@ -11,10 +11,15 @@ Prints one JSON document: whether every race evaluation finished, whether they s
 submission order (inversions among start times; the job service runs ``--workers`` jobs at once,
 the trainings included), the p50 / p99 latency of the board's ``GET /api/races/{id}/leaderboard`` and
 of ``GET /api/races``, and the trainings' wall-time ratio for equal work (phase 1 over phase 2:
-1.0 = not slowed; DeepRacer's equal-work measure from ``bench/console_load.py``).
+1.0 = not slowed; DeepRacer's equal-work measure from ``bench/console_load.py``), how long the
+evaluations took (queued -> started -> finished, and how many finished while the trainings ran), the
+evaluations' CPU priority (``--evaluation-priority``, passed to ``laplab serve``: nice levels below
+the trainings, or ``idle``) and the host's load average before and after. The trainings stop at
+``--train-time`` (their own time budget); the evaluations then go on until all are done.
 
 Usage: python bench/race_load.py [--racers 30] [--trainings 2] [--workers 4] [--train-time 120]
                                  [--spread 60] [--pollers 4] [--laps 1] [--timeout 1800]
+                                 [--evaluation-priority NICE|idle]
 The issue's figures need a machine with cores for ``--workers`` jobs; on a small one run it small
 (``--racers 4 --trainings 1 --workers 2 --train-time 40``).
 """
@@ -91,14 +96,17 @@ def main() -> None:
     parser.add_argument("--pollers", type=int, default=4)
     parser.add_argument("--laps", type=int, default=1)
     parser.add_argument("--timeout", type=float, default=1800.0)
+    parser.add_argument("--evaluation-priority", default=None, help="laplab serve's (default: its default, 10)")
     args = parser.parse_args()
+    load_before = os.getloadavg()
 
     home = Path(tempfile.mkdtemp(prefix="laplab-race-load-"))
     os.environ["LAPLAB_HOME"] = str(home)
     port = free_port()
     env = {**os.environ, "LAPLAB_ADMIN_TOKEN": TOKEN}
+    priority = [] if args.evaluation_priority is None else ["--evaluation-priority", str(args.evaluation_priority)]
     server = subprocess.Popen([sys.executable, "-m", "laplab.cli", "serve", "--port", str(port),
-                               "--workers", str(args.workers)], env=env, stdout=subprocess.DEVNULL,
+                               "--workers", str(args.workers), *priority], env=env, stdout=subprocess.DEVNULL,
                               stderr=subprocess.DEVNULL)
     url = f"http://127.0.0.1:{port}"
     admin = httpx.Client(base_url=url, headers={"Authorization": f"Bearer {TOKEN}"}, timeout=60, **PLAIN_HTTP)
@@ -166,7 +174,12 @@ def main() -> None:
 
         store = JobStore(home / "laplab.db")
         jobs = [store.job(job_id) for job_id in sorted(submitted)]
+        trained = [j for j in store.jobs(kind=("train",)) if j.model.startswith("raced-")]
         store.close()
+        training_end = max((j.finished for j in trained if j.finished), default=None)
+        first_log = (home / "jobs" / str(jobs[0].id) / "log.txt").read_text().splitlines() if jobs else []
+        ran = [j.finished - j.started for j in jobs if j.started and j.finished]
+        waited = [j.started - j.created for j in jobs if j.started]
         starts = [j.started for j in jobs]
         inversions = sum(1 for a in range(len(starts)) for b in range(a + 1, len(starts))
                          if starts[a] is not None and starts[b] is not None and starts[b] < starts[a])
@@ -179,11 +192,19 @@ def main() -> None:
                 [s["reason"] for s in subs if s["state"] == "failed"],
             "ranked": len(coach.get(board).json()["entries"]), "start_order_inversions": inversions,
             "race_wall_s": round(race_wall, 1), "training_status": statuses,
+            "evaluation_priority": args.evaluation_priority or "serve's default",
+            "evaluation_cpu": first_log[0].split("(CPU: ", 1)[-1][:-1] if first_log else None,
+            "evaluation_run_s": {"mean": round(sum(ran) / len(ran), 1), "max": round(max(ran), 1)} if ran else None,
+            "evaluation_queue_s": {"mean": round(sum(waited) / len(waited), 1), "max": round(max(waited), 1)}
+                                  if waited else None,
+            "evaluations_done_while_training": None if training_end is None else
+                sum(1 for j in jobs if j.finished and j.finished <= training_end),
             "training_equal_work_ratio": None if ratio is None else round(ratio[0], 3),
             "training_slowdown_pct": None if ratio is None else round(100 * (1 / ratio[0] - 1), 1),
             "latency_ms": {path: {"n": len(v), "p50": round(1000 * percentile(v, 50), 1),
                                   "p99": round(1000 * percentile(v, 99), 1)} for path, v in timings.items()},
-            "cpus": os.cpu_count(),
+            "cpus": os.cpu_count(), "load_average_before": [round(v, 2) for v in load_before],
+            "load_average_after": [round(v, 2) for v in os.getloadavg()],
         }
         print(json.dumps(report, indent=1))
     finally:
