@@ -17,7 +17,12 @@ from laplab.cli import main
 from laplab.errors import UserError
 from laplab.jobs.confinement import JobLimits, bubblewrap_works
 from laplab.jobs.db import Job
-from laplab.jobs.priority import DEFAULT_EVALUATION_PRIORITY, IDLE, job_priority, parse_priority
+from laplab.jobs.priority import (
+    DEFAULT_EVALUATION_PRIORITY,
+    IDLE,
+    job_priority,
+    parse_priority,
+)
 from laplab.jobs.runner import LocalProcessRunner, job_folder
 
 SERVER_NICE = os.getpriority(os.PRIO_PROCESS, 0)
