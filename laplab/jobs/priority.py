@@ -26,7 +26,7 @@ from laplab.errors import UserError
 
 IDLE = "idle"
 MAX_NICE = 19
-DEFAULT_EVALUATION_PRIORITY = 10  # bench/race_load.py on 2 cores: trainings within 15 % (BENCHMARKS.md)
+DEFAULT_EVALUATION_PRIORITY = 10  # ~10 % of a core shared with a training (BENCHMARKS.md, session 19)
 AUTOGROUP = Path("/proc/self/autogroup")
 
 __all__ = ["DEFAULT_EVALUATION_PRIORITY", "IDLE", "apply_priority", "describe_priority", "job_priority",
