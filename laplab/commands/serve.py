@@ -22,6 +22,11 @@ def register(subparsers) -> None:
     parser.add_argument("--max-job-time", default="24h", metavar="DURATION",
                         help="the longest training a user may ask for (e.g. 90m, 24h; default 24h, as DeepRacer "
                              "on AWS's 1440 minutes): a longer max time is refused")
+    parser.add_argument("--evaluation-priority", default=None, metavar="NICE|idle",
+                        help="how far evaluation jobs (evaluations, race submissions, head-to-model races) run below "
+                             "trainings on the CPU: a niceness 0..19 (default 10; 0: the same priority) or 'idle' "
+                             "(Linux SCHED_IDLE). Trainings keep their speed while a class races; on a busy machine "
+                             "evaluations take longer (docs/console.md, 'CPU priority')")
     parser.add_argument("--max-upload", default="1G", metavar="SIZE",
                         help="the largest archive `Import` accepts (default 1G); other requests take at most 1 MiB")
     parser.add_argument("--ray-address", default=None, metavar="ADDR",
@@ -77,8 +82,12 @@ def run(args: argparse.Namespace) -> int:
         max_upload = parse_memory_limit(args.max_upload)
     except (ConfigError, ValueError) as exc:
         raise UserError(f"--max-job-time / --max-upload: {exc}") from None
+    from laplab.jobs.priority import DEFAULT_EVALUATION_PRIORITY, parse_priority
+    evaluation_priority = parse_priority(DEFAULT_EVALUATION_PRIORITY if args.evaluation_priority is None
+                                         else args.evaluation_priority, "--evaluation-priority")
     cluster, warnings = _cluster(args)
-    limits = JobLimits.console(wall_margin_s=args.job_wall_margin, max_time_s=max_time)
+    limits = JobLimits.console(wall_margin_s=args.job_wall_margin, max_time_s=max_time,
+                               evaluation_priority=evaluation_priority)
     app = create_app(args.workers, open_access=args.no_accounts, limits=limits, cluster=cluster,
                      sandbox=False if args.no_sandbox else None, allow_unsandboxed=args.no_sandbox,
                      max_upload_bytes=max_upload or (1 << 40))
@@ -94,6 +103,9 @@ def run(args: argparse.Namespace) -> int:
           f"{'sandboxed with bubblewrap' if app.state.sandbox else 'NOT sandboxed: limits and a clean environment only'}")
     if not app.state.sandbox:
         print(f"warning: {NO_SANDBOX_BANNER if args.no_sandbox else NO_SANDBOX_REFUSAL}", flush=True)
+    print("evaluation jobs run " + ("at the trainings' CPU priority" if evaluation_priority == 0 else
+                                    "with SCHED_IDLE (CPU time the trainings leave)" if evaluation_priority == "idle"
+                                    else f"{evaluation_priority} nice levels below the trainings"), flush=True)
     if cluster is not None:
         print(f"training jobs run {cluster.workers} rollout worker(s) each on the Ray cluster at {cluster.address} "
               "(their jobs keep the network)")

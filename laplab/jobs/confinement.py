@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 
+from laplab.jobs.priority import DEFAULT_EVALUATION_PRIORITY, apply_priority, parse_priority
 from laplab.reward.guards import die_with_parent
 
 GIB = 1024 ** 3
@@ -65,6 +66,10 @@ class JobLimits:
     wall_margin_s: (console) wall-clock seconds a job may run past its own time budget before the
         server ends it (a job blocked in a sleep or on a lock uses no CPU).
     max_time_s: (console) the longest training a request may ask for (DeepRacer on AWS: 1440 min).
+    cpu_priority: this job's CPU priority (:mod:`laplab.jobs.priority`): an absolute niceness 0..19,
+        ``"idle"`` (SCHED_IDLE), or None (the parent's, as trainings run).
+    evaluation_priority: (console) how far evaluation jobs (evaluate, race submissions, duels) run
+        below trainings: a niceness 0..19 relative to theirs, or ``"idle"`` (``--evaluation-priority``).
 
     :meth:`console` gives the console's defaults (6 GiB, 4 h of CPU, 4 GiB files).
     """
@@ -77,8 +82,13 @@ class JobLimits:
     reward_output_lines: int = 50
     wall_margin_s: float = 600.0
     max_time_s: float = 24 * 3600.0
+    cpu_priority: int | str | None = None
+    evaluation_priority: int | str = DEFAULT_EVALUATION_PRIORITY
 
     def __post_init__(self) -> None:
+        if self.cpu_priority is not None:
+            parse_priority(self.cpu_priority, "JobLimits.cpu_priority")
+        parse_priority(self.evaluation_priority, "JobLimits.evaluation_priority")
         for name in ("memory_bytes", "cpu_seconds", "file_bytes"):
             value = getattr(self, name)
             if value is not None and not value > 0:
@@ -177,8 +187,9 @@ def _lower(kind: int, value: float | None, hard_extra: int = 0) -> None:
 
 def apply_limits(limits: JobLimits) -> None:
     """In the job's process: the resource limits of ``limits`` (address space, CPU time with a 10 s
-    grace from SIGXCPU to SIGKILL, file size, no core dumps) and death with its parent."""
+    grace from SIGXCPU to SIGKILL, file size, no core dumps), its CPU priority and death with its parent."""
     die_with_parent()
+    apply_priority(limits.cpu_priority)
     _lower(resource.RLIMIT_AS, limits.memory_bytes)
     _lower(resource.RLIMIT_CPU, limits.cpu_seconds, 10)
     _lower(resource.RLIMIT_FSIZE, limits.file_bytes)

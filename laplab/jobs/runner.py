@@ -25,6 +25,7 @@ from typing import Protocol
 
 from laplab.jobs.db import Job
 from laplab.jobs.confinement import SANDBOX_HOME, JobLimits, Mounts, bubblewrap_works, clean_environment, start_confined
+from laplab.jobs.priority import job_priority
 from laplab.jobs.supervisor import ENV_LIMITS
 from laplab.settings import Settings, current_settings
 
@@ -92,6 +93,9 @@ def owner_cache(owner: int) -> Path:
 
 
 READ_ONLY_KINDS = ("export", "duel")
+# the jobs that yield the CPU to trainings (JobLimits.evaluation_priority, `laplab serve --evaluation-priority`):
+# an evaluation (the model page's or a race submission's) and a head-to-model race
+EVALUATION_KINDS = ("evaluate", "duel")
 
 
 def job_mounts(job: Job) -> Mounts:
@@ -191,10 +195,13 @@ class LocalProcessRunner:
                                   **(self.cluster.job_environment() if on_cluster else {})}, sandboxed=self.sandbox)
 
     def _limits_for(self, job: Job) -> JobLimits:
-        """CPU time: the job's wall budget on every core, plus a margin for start-up and evaluation."""
+        """CPU time: the job's wall budget on every core, plus a margin for start-up and evaluation;
+        CPU priority: an evaluation's ``evaluation_priority`` levels below the server (where trainings run)."""
         budget = float(job.params.get("max_time_s") or 0) * (os.cpu_count() or 1) * 1.5 + 600
         cpu = budget if self.limits.cpu_seconds is None else min(self.limits.cpu_seconds, budget)
-        return replace(self.limits, cpu_seconds=int(cpu))
+        priority = (job_priority(self.limits.evaluation_priority) if job.kind in EVALUATION_KINDS
+                    else self.limits.cpu_priority)
+        return replace(self.limits, cpu_seconds=int(cpu), cpu_priority=priority)
 
     def stop(self, job: Job) -> None:
         """Ask through the job's folder (a signal would end bubblewrap, and with it the job, at once)."""

@@ -196,8 +196,10 @@ def _evaluate(files: JobFiles, spec: dict) -> None:
     cluster = spec.get("cluster")  # a console started with --ray-address: the laps are driven on a Ray node
     if cluster:
         from laplab.cluster.evaluations import evaluate_model_on_ray
+        from laplab.jobs.supervisor import job_limits
         result, stamp, where = evaluate_model_on_ray(spec["model"], settings, cluster["address"],
-                                                     lambda message: print(message, flush=True), files.should_stop)
+                                                     lambda message: print(message, flush=True), files.should_stop,
+                                                     priority=job_limits().evaluation_priority)
         files.finish("done", stamp=stamp, summary=result.to_dict().get("summary"), driven_on=where)
         return
     result, stamp = evaluate_model(spec["model"], settings)
@@ -279,7 +281,8 @@ def main(argv: list[str] | None = None) -> int:
     from laplab.evaluate.trials import EvaluationError
     try:
         spec = json.loads((files.folder / "spec.json").read_text())
-        print(f"laplab job {spec['id']}: {spec['kind']} {spec['model']}", flush=True)
+        from laplab.jobs.priority import describe_priority
+        print(f"laplab job {spec['id']}: {spec['kind']} {spec['model']} (CPU: {describe_priority()})", flush=True)
         if spec["kind"] == "evaluate":
             _evaluate(files, spec)
         elif spec["kind"] == "export":

@@ -241,8 +241,9 @@ def test_a_cluster_gone_at_job_time_fails_the_job_with_one_paragraph(tmp_path, s
 
 
 def test_a_race_submission_is_evaluated_on_the_cluster(ray_head, tmp_path, serve_console):
-    """With --ray-address a race submission's evaluate job drives its lap on a Ray worker and the result
-    reaches the race's board as a local one does."""
+    """With --ray-address a race submission's evaluate job drives its lap on a Ray worker, at the
+    evaluation priority below the node's other workers, and the result reaches the race's board as a
+    local one does."""
     from tests.console.conftest import create_tiny_model
     cluster = RayCluster.at(ray_head["client"], 1)  # with this user's Ray token, as `laplab serve` takes it
     with serve_console(tmp_path / "home", workers=1, cluster=cluster) as console:
@@ -266,5 +267,7 @@ def test_a_race_submission_is_evaluated_on_the_cluster(ray_head, tmp_path, serve
         assert sub["state"] == "done", (sub, log)
         assert f"evaluating 1 lap on the Ray cluster at {ray_head['client']}" in log and "the laps were driven on" in log
         assert job.result["driven_on"]["pid"] not in (job.pid, os.getpid()) and job.result["driven_on"]["node_id"]  # a Ray worker drove
+        # below the node's rollout workers (Ray starts its workers at nice 15: the default 10 reaches 19)
+        assert job.result["driven_on"]["nice"] == 19 and "at nice 19)" in log
         assert len(sub["laps"]) == 1 and (sub["score"] is not None or sub["reason"])
         assert rita.get(f"/api/races/{race['id']}/submissions/{sub['id']}/video").status_code == 200
