@@ -61,8 +61,9 @@ _MAX_ROW_BYTES = 1024  # generous bound: 19 fields of at most ~40 bytes
 _CHUNK_ROWS = 8192
 
 
-# _render writes ASCII codes: 10 newline, 32 space, 44 ',', 91 '[', 93 ']'.
-@njit(cache=True)
+# _render writes ASCII codes: 10 newline, 32 space, 44 ',', 91 '[', 93 ']'. nogil: the model folder's writer
+# thread renders while the trainer's thread collects (laplab.train.background).
+@njit(cache=True, nogil=True)
 def _render(kinds, slots, decimals, integers, numbers, token_bytes, token_lengths, buffer):
     """CSV bytes of rows (n,) into `buffer`; integers (n, a) int64, numbers (n, b) float64.
     Returns the number of bytes written."""
