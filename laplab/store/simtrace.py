@@ -192,6 +192,17 @@ def format_rows(columns: dict[str, np.ndarray]) -> str:
     return _render_rows(columns).decode("ascii")
 
 
+def compile_renderer() -> None:
+    """Compile the row renderer now (numba: several seconds on a machine whose cache is cold, e.g. a
+    fresh GPU machine; then read from the cache): the model folder's writer thread calls it when a
+    job starts, so the first iteration's simtrace does not wait for it (laplab.train.background)."""
+    row = {name: np.zeros(1, np.int64) for name in (*_INT_COLUMNS, "action")}
+    row.update({name: np.zeros(1, bool) for name in _BOOL_COLUMNS})
+    row.update({name: np.zeros(1) for name in _FLOAT_DECIMALS})
+    row.update(reward=np.zeros(1), episode_status=np.zeros(1, np.int64))
+    _render_rows(row)  # one compiled kernel renders every column plan (discrete or continuous actions)
+
+
 class SimtraceWriter:
     """Appends batches of rows to one simtrace CSV (header written when the file is new).
 

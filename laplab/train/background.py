@@ -18,7 +18,10 @@ Rules that keep it as safe as writing in the trainer's thread:
   last complete checkpoint and the files written before it), and the error is raised in the trainer's
   thread by the next event or by :meth:`wait`, so it ends the job as it did when written inline;
 - at most ``MAX_PENDING_CHECKPOINTS`` checkpoints wait to be written: a trainer faster than its disk
-  waits for the writer rather than holding ever more copies of the networks in memory.
+  waits for the writer rather than holding ever more copies of the networks in memory;
+- a listener's ``prepare()`` runs first on the writer thread, as the job starts: the folder's
+  recorder compiles the simtrace renderer there (numba: 7-9 s on the busy 2-core host with a cold
+  cache, as on a fresh GPU machine), while the first iteration collects.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ import queue
 import threading
 from typing import Sequence
 
-MAX_PENDING_CHECKPOINTS = 2
+MAX_PENDING_CHECKPOINTS = 3
 WRITTEN_EVENTS = ("on_episodes", "on_checkpoint", "on_iteration", "on_error")
 _STOP = object()
 
@@ -48,6 +51,8 @@ class BackgroundListeners:
         self._reported = False
         self._thread: threading.Thread | None = None
         self._closed = False
+        if any(getattr(listener, "prepare", None) for listener in self.listeners):
+            self._submit("prepare", None)  # e.g. compiling the simtrace renderer while iteration 1 runs
 
     # -- the trainer's side ----------------------------------------------------------------------
 
@@ -107,7 +112,7 @@ class BackgroundListeners:
         for listener in self.listeners:
             handler = getattr(listener, event, None)
             if handler is not None:
-                handler(payload)
+                handler() if event == "prepare" else handler(payload)
 
     def _work(self) -> None:
         while True:
