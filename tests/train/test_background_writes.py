@@ -64,6 +64,20 @@ def test_events_are_written_in_order_on_the_writer_thread_and_wait_returns_when_
     assert log.seen[-1] == ("on_episodes", 9, threading.current_thread().name)
 
 
+def test_prepare_runs_first_on_the_writer_thread_as_the_job_starts():
+    class Prepared(Log):
+        def prepare(self):
+            time.sleep(0.05)  # e.g. compiling the simtrace renderer
+            self.seen.append(("prepare", None, threading.current_thread().name))
+
+    log = Prepared()
+    writer = BackgroundListeners([log])
+    writer.on_episodes(1)
+    writer.close()
+    assert [(event, thread) for event, _, thread in log.seen] == [("prepare", "laplab-model-writer"),
+                                                                  ("on_episodes", "laplab-model-writer")]
+
+
 def test_a_failed_write_drops_what_follows_and_is_raised_once_in_the_callers_thread():
     log = Log(fail_on=2)
     writer = BackgroundListeners([log])
