@@ -52,15 +52,20 @@ def instrument() -> None:
     import laplab.store.simtrace as simtrace
     import laplab.train.resume_codec as codec
     import laplab.train.trainer as trainer
+    try:
+        import laplab.train.checkpoint_state as checkpoint_state  # where checkpoints are made (before: trainer)
+    except ImportError:
+        checkpoint_state = None
 
     patch(torch, "save", "torch.save (checkpoint + resume)")
     patch(os, "fsync", "os.fsync (all)")
     patch(codec, "pack_state", "pack_state (Adam moments, zstd)")
-    patch(codec, "on_cpu", "on_cpu (weights to CPU)")
-    patch(trainer, "on_cpu", "on_cpu (weights to CPU)")
-    patch(trainer, "pack_state", "pack_state (Adam moments, zstd)")
-    patch(trainer, "checkpoint_writer", "checkpoint_writer (state built)")
-    patch(trainer, "resume_writer", "resume_writer (state built)")
+    for module in (trainer, checkpoint_state):  # the trainer's own names, and those its writers look up
+        if module is not None:
+            patch(module, "on_cpu", "on_cpu (weights to CPU, old code)")
+            patch(module, "pack_state", "pack_state (Adam moments, zstd)")
+            patch(module, "checkpoint_writer", "checkpoint_writer (state built)")
+            patch(module, "resume_writer", "resume_writer (state built)")
     patch(checkpoints.CheckpointStore, "_write_records", "deepracer_checkpoints.json")
     patch(checkpoints.CheckpointStore, "_prune", "prune old checkpoints")
     patch(metrics.TrainingMetricsWriter, "append_training", "TrainingMetrics.json (training rows)")

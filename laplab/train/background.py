@@ -31,12 +31,12 @@ import threading
 from typing import Sequence
 
 MAX_PENDING_CHECKPOINTS = 3
-WRITTEN_EVENTS = ("on_episodes", "on_checkpoint", "on_iteration", "on_error")
 _STOP = object()
 
 
 class BackgroundListeners:
-    """Runs ``listeners``' :data:`WRITTEN_EVENTS` on one background thread (named ``name``), in order.
+    """Runs ``listeners``' ``on_episodes``, ``on_checkpoint``, ``on_iteration`` and ``on_error`` on one
+    background thread (named ``name``), in the order they came, after their ``prepare()``.
 
     A listener method that raises makes the writer stop; the exception is re-raised in the caller's
     thread by the next event, :meth:`wait` or :meth:`close`. Other events (``on_poses``,
