@@ -1,8 +1,8 @@
 """Does writing a checkpoint on the model folder's writer thread overlap with learning on this machine?
 
 The main thread runs camera PPO gradient steps (the console's network, a batch of 64 frames); a
-second thread writes one iteration's checkpoint and resume state as the writer thread does
-(``laplab.train.background``). Prints the learning alone, the write alone, the two one after the
+second thread writes one iteration's checkpoint and resume state on the model folder's writer
+thread (``laplab.train.background.BackgroundListeners``, at its lower priority). Prints the learning alone, the write alone, the two one after the
 other and the two overlapped (wall seconds). On 2 busy cores overlapped is about sequential; with
 idle cores it approaches the learning alone.
 
@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import os
 import tempfile
-import threading
 import time
 from dataclasses import replace
 
@@ -29,6 +28,7 @@ def main() -> None:
 
     from camera_steps import ROWS, console_metadata  # bench/camera_steps.py
     from laplab.store.atomic import atomic_write_with
+    from laplab.train.background import BackgroundListeners
     from laplab.train.config import TrainConfig
     from laplab.train.trainer import build_learner, checkpoint_writer, resume_writer
 
@@ -53,6 +53,10 @@ def main() -> None:
         atomic_write_with(os.path.join(folder, "checkpoint"), weights)
         atomic_write_with(os.path.join(folder, "resume"), resume)
 
+    class CheckpointWriter:
+        def on_checkpoint(self, _) -> None:
+            write()
+
     learn(2)  # warm-up
     for _ in range(args.trials):
         started = time.perf_counter()
@@ -62,10 +66,10 @@ def main() -> None:
         write()
         solo = time.perf_counter() - started
         started = time.perf_counter()
-        writer = threading.Thread(target=write)
-        writer.start()
+        writer = BackgroundListeners([CheckpointWriter()])  # as the trainer's model folder writer runs
+        writer.on_checkpoint(None)
         learn(args.steps)
-        writer.join()
+        writer.close()
         both = time.perf_counter() - started
         print(f"learn alone {alone:.2f} s, write alone {solo:.2f} s, one after the other {alone + solo:.2f} s, "
               f"overlapped {both:.2f} s; load average {os.getloadavg()[0]:.1f}", flush=True)

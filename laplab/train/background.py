@@ -19,6 +19,8 @@ Rules that keep it as safe as writing in the trainer's thread:
   thread by the next event or by :meth:`wait`, so it ends the job as it did when written inline;
 - at most ``MAX_PENDING_CHECKPOINTS`` checkpoints wait to be written: a trainer faster than its disk
   waits for the writer rather than holding ever more copies of the networks in memory;
+- the writer thread runs at a lower CPU priority (nice +``WRITER_NICENESS``): on a busy machine with
+  few cores it takes the time training leaves rather than slowing the trainer's torch threads;
 - a listener's ``prepare()`` runs first on the writer thread, as the job starts: the folder's
   recorder compiles the simtrace renderer there (numba: 7-9 s on the busy 2-core host with a cold
   cache, as on a fresh GPU machine), while the first iteration collects.
@@ -26,6 +28,7 @@ Rules that keep it as safe as writing in the trainer's thread:
 
 from __future__ import annotations
 
+import os
 import queue
 import threading
 from typing import Sequence
@@ -115,6 +118,7 @@ class BackgroundListeners:
                 handler() if event == "prepare" else handler(payload)
 
     def _work(self) -> None:
+        _lower_priority()
         while True:
             task = self._tasks.get()
             try:
@@ -131,3 +135,16 @@ class BackgroundListeners:
                         self._checkpoint_slots.release()
             finally:
                 self._tasks.task_done()
+
+
+WRITER_NICENESS = 10
+
+
+def _lower_priority() -> None:
+    """Lower the calling thread's CPU priority by ``WRITER_NICENESS`` (Linux: a thread's own nice value),
+    so that on a busy machine with few cores the writer takes the CPU time training leaves (the
+    trainer's torch threads wait for a descheduled sibling otherwise). Elsewhere it does nothing."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), os.getpriority(os.PRIO_PROCESS, 0) + WRITER_NICENESS)
+    except (AttributeError, OSError):
+        pass

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from dataclasses import replace
@@ -12,7 +13,7 @@ import torch
 from laplab.env.metadata import ModelMetadata
 from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import model_folder
-from laplab.train.background import MAX_PENDING_CHECKPOINTS, BackgroundListeners
+from laplab.train.background import MAX_PENDING_CHECKPOINTS, WRITER_NICENESS, BackgroundListeners
 from laplab.train.checkpoint_read import read_resume_state
 from laplab.train.config import TrainConfig
 from laplab.train.jobs import create_training, take_lock
@@ -176,3 +177,18 @@ def test_a_failed_checkpoint_write_ends_the_job_and_keeps_the_last_complete_chec
     assert name.startswith("1_Step-") and state["iteration"] == 1 and "optimizer" in state["learner"]
     take_lock(folder).release()  # the job ended: its lock is released
     assert trainer._listeners[0]._thread is None
+
+
+@pytest.mark.skipif(not hasattr(os, "getpriority") or not os.path.exists("/proc/self/task"),
+                    reason="thread priorities: Linux")
+def test_the_writer_runs_at_a_lower_cpu_priority():
+    seen = []
+
+    class Nice:
+        def on_episodes(self, _):
+            seen.append(os.getpriority(os.PRIO_PROCESS, 0))  # 0: this thread, on Linux
+
+    writer = BackgroundListeners([Nice()])
+    writer.on_episodes(None)
+    writer.close()
+    assert seen == [min(os.getpriority(os.PRIO_PROCESS, 0) + WRITER_NICENESS, 19)]
