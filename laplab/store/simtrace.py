@@ -61,8 +61,9 @@ _MAX_ROW_BYTES = 1024  # generous bound: 19 fields of at most ~40 bytes
 _CHUNK_ROWS = 8192
 
 
-# _render writes ASCII codes: 10 newline, 32 space, 44 ',', 91 '[', 93 ']'.
-@njit(cache=True)
+# _render writes ASCII codes: 10 newline, 32 space, 44 ',', 91 '[', 93 ']'. nogil: the model folder's writer
+# thread renders while the trainer's thread collects (laplab.train.background).
+@njit(cache=True, nogil=True)
 def _render(kinds, slots, decimals, integers, numbers, token_bytes, token_lengths, buffer):
     """CSV bytes of rows (n,) into `buffer`; integers (n, a) int64, numbers (n, b) float64.
     Returns the number of bytes written."""
@@ -189,6 +190,17 @@ def format_rows(columns: dict[str, np.ndarray]) -> str:
     `pause_duration` and `obstacle_crash_counter` default to 0 and `wall_clock` to now.
     """
     return _render_rows(columns).decode("ascii")
+
+
+def compile_renderer() -> None:
+    """Compile the row renderer now (numba: several seconds on a machine whose cache is cold, e.g. a
+    fresh GPU machine; then read from the cache): the model folder's writer thread calls it when a
+    job starts, so the first iteration's simtrace does not wait for it (laplab.train.background)."""
+    row = {name: np.zeros(1, np.int64) for name in (*_INT_COLUMNS, "action")}
+    row.update({name: np.zeros(1, bool) for name in _BOOL_COLUMNS})
+    row.update({name: np.zeros(1) for name in _FLOAT_DECIMALS})
+    row.update(reward=np.zeros(1), episode_status=np.zeros(1, np.int64))
+    _render_rows(row)  # one compiled kernel renders every column plan (discrete or continuous actions)
 
 
 class SimtraceWriter:

@@ -56,7 +56,7 @@ def read_resume_state(folder: ModelFolder) -> tuple[str, dict]:
     """``(file name, state)`` of the last checkpoint with its resume state (optimizers, targets) folded
     in when the folder has it; without it (an imported model, an older folder) the state holds what the
     checkpoint holds and the learner starts fresh optimizers."""
-    from laplab.train.trainer import merge_resume_state
+    from laplab.train.checkpoint_state import merge_resume_state
     name, state = read_checkpoint(folder, "last")
     resume_path = CheckpointStore(folder).resume_path(name)
     try:

@@ -6,6 +6,9 @@ listener (:class:`laplab.train.recorder.ModelFolderRecorder`); a terminal displa
 object store are others. A listener implements any subset of the ``on_*`` methods of
 :class:`TrainerListener`; they run in the trainer's thread, in subscription order, and should return
 quickly (``on_poses`` runs after every simulation step of the collection and of the evaluation laps).
+Listeners that write files are wrapped in :class:`laplab.train.background.BackgroundListeners`, which
+hands their events to one writer thread; the trainer waits for a listener's ``wait()`` (when it has
+one) at the end of each run, so events must not change after they are handed over.
 """
 
 from __future__ import annotations

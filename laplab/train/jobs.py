@@ -21,6 +21,7 @@ from laplab.train.errors import JobError
 from laplab.track.geometry import Track
 from laplab.track.registry import load_track
 from laplab.train.archive import check_reward_trusted, check_trainable
+from laplab.train.background import BackgroundListeners
 from laplab.train.checkpoint_read import read_checkpoint, read_resume_state
 from laplab.train.collaborators import WorkerLauncher
 from laplab.train.recorder import ModelFolderRecorder, RobomakerLogRecorder
@@ -137,21 +138,26 @@ def _start(folder: ModelFolder, config: TrainConfig, reward_fn: RewardFunction, 
     folder is whole, with checkpoint 0, or absent) runs and then the lock is released."""
     iteration = int(resume_from["iteration"]) if resume_from is not None else 0
     episodes = int(resume_from["episodes"]) if resume_from is not None else 0
-    collector = None
+    collector = recorders = None
     try:
         collector, evaluator = launcher.start(config, reward_fn, folder, iteration) if launcher else (None, None)
-        recorders = (ModelFolderRecorder(folder, iteration, episodes, config.workers),
-                     RobomakerLogRecorder(folder, config))
+        # the folder's files are written on one background thread while the next iteration runs
+        recorders = BackgroundListeners((ModelFolderRecorder(folder, iteration, episodes, config.workers),
+                                         RobomakerLogRecorder(folder, config)))
         trainer = Trainer(config, reward_fn, track, resume_from=resume_from, device=device, folder=folder, lock=lock,
-                          listeners=(*recorders, *listeners), collector=collector, evaluator=evaluator)
+                          listeners=(recorders, *listeners), collector=collector, evaluator=evaluator)
         if init_weights is not None:
             load_weights_only(trainer.learner, init_weights)
         if resume_from is None:  # a new job (or one killed before its first checkpoint)
             trainer.save_initial_checkpoint()
     except BaseException:
         try:
-            if collector is not None:
-                collector.close()
+            try:
+                if recorders is not None:
+                    recorders.close()  # its thread ends (a failed checkpoint 0 was raised already)
+            finally:
+                if collector is not None:
+                    collector.close()
         finally:
             if discard is not None:
                 discard()

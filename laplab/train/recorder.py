@@ -14,7 +14,7 @@ from laplab.store.checkpoints import CheckpointStore
 from laplab.store.layout import ModelFolder
 from laplab.store.metrics import TrainingMetricsWriter
 from laplab.store.robomaker_log import RobomakerLogWriter, robomaker_log_path
-from laplab.store.simtrace import SimtraceWriter
+from laplab.store.simtrace import SimtraceWriter, compile_renderer
 from laplab.train.events import CheckpointReady, IterationEpisodes, IterationReport
 
 
@@ -35,6 +35,11 @@ class ModelFolderRecorder:
             self._drop_records_after(iteration, episodes)
         self.metrics = TrainingMetricsWriter(folder.training_metrics)
         self._iteration_rows = self._read_iteration_log(iteration)
+
+    def prepare(self) -> None:
+        """Compile the simtrace renderer (seconds on a cold numba cache), on the writer thread as the job
+        starts (:class:`laplab.train.background.BackgroundListeners`), before the first iteration's rows."""
+        compile_renderer()
 
     @property
     def iterations_log(self):

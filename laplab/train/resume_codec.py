@@ -42,10 +42,11 @@ def unpack_state(state: Any) -> Any:
     return state
 
 
-def on_cpu(state: Any) -> Any:
-    """``state`` with every tensor on the CPU: a checkpoint of a learner on a GPU loads anywhere, even
-    with a plain ``torch.load``. CPU tensors are not copied."""
-    return map_tensors(state, torch.Tensor.cpu)
+def cpu_copy(state: Any) -> Any:
+    """``state`` with every tensor copied to the CPU (a GPU tensor's copy is its CPU copy): a snapshot
+    that training may go on changing the networks and optimizer beside, while it is written; a
+    checkpoint of a learner on a GPU loads anywhere, even with a plain ``torch.load``."""
+    return map_tensors(state, lambda tensor: tensor.detach().to("cpu", copy=True))
 
 
 def map_tensors(state: Any, change: Callable[[torch.Tensor], Any]) -> Any:

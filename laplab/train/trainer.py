@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
-import torch
 
 from laplab.agents.learner import Learner, build_learner as build_model_learner
 from laplab.env.observations import ObservationBuilder
@@ -27,7 +26,8 @@ from laplab.sim.state import EpisodeParams
 from laplab.track.geometry import Track
 from laplab.train.collect import CollectionAborted, EpisodeBatch, collect_episodes
 from laplab.train.config import TrainConfig
-from laplab.train.resume_codec import on_cpu, pack_state
+from laplab.train.checkpoint_state import (checkpoint_writer, load_checkpoint, load_weights_only,  # noqa: F401
+                                           merge_resume_state, resume_writer)
 from laplab.sim.state import episodes_done_and_steps
 from laplab.train.events import CheckpointReady, IterationEpisodes, IterationReport, PhaseProgress, PosesFrame
 from laplab.vehicle.params import vehicle_preset
@@ -69,41 +69,6 @@ def build_learner(config: TrainConfig, seed: int, precision: str | None = None, 
     """The learner of a training job (its model spec, hyperparameters, threads, precision and torch device)."""
     return build_model_learner(config.spec, config.hyper(), seed=seed, num_threads=config.num_threads,
                                precision=precision or config.precision, device=device)
-
-
-def checkpoint_writer(learner: Learner, iteration: int, env_steps: int, episodes: int, best_lap_time: float | None):
-    """A checkpoint (the learner's weights plus where the job stood), as a function that writes it to
-    a path (straight to the file: a camera network's weights are tens of MB). Optimizer state and
-    target networks are not in it: see :func:`resume_writer`."""
-    state = {"learner": on_cpu(learner.weights_state()), "iteration": iteration, "env_steps": env_steps,
-             "episodes": episodes, "best_lap_time": best_lap_time}
-    return lambda path: torch.save(state, path)
-
-
-def resume_writer(learner: Learner):
-    """What ``--resume`` needs beyond a checkpoint's weights (optimizers, target networks), as a
-    function writing it to a path; kept for the last checkpoint only (:func:`merge_resume_state`)."""
-    weights = learner.weights_state()
-    extra = {key: value for key, value in learner.state_dict().items() if key not in weights}
-    return lambda path: torch.save({"learner": pack_state(extra)}, path)  # Adam's moments, compressed exactly
-
-
-def merge_resume_state(state: dict, resume: dict | None) -> dict:
-    """A checkpoint's state with its resume state (from :func:`resume_writer`) folded in."""
-    if not resume:
-        return state
-    return {**state, "learner": {**state["learner"], **resume.get("learner", {})}}
-
-
-def load_weights_only(learner: Learner, state: dict) -> None:
-    """Start ``learner`` from the network weights in ``state`` (a clone: fresh optimizer, new
-    hyperparameters, schedules from zero)."""
-    learner.load_weights(state)
-
-
-def load_checkpoint(path) -> dict:
-    """Read a checkpoint written by :func:`checkpoint_writer`."""
-    return torch.load(path, map_location="cpu", weights_only=True)  # tensors and plain data only: no code runs
 
 
 class Trainer:
@@ -171,11 +136,17 @@ class Trainer:
             return
         self._closed = True
         try:
-            if self.collector is not None:
-                self.collector.close()
+            for listener in self._listeners:  # the folder's writes end before its lock is released
+                close = getattr(listener, "close", None) if getattr(listener, "wait", None) else None
+                if close is not None:
+                    close()
         finally:
-            if self.lock is not None:
-                self.lock.release()  # the folder is free for the next job
+            try:
+                if self.collector is not None:
+                    self.collector.close()
+            finally:
+                if self.lock is not None:
+                    self.lock.release()  # the folder is free for the next job
 
     def __enter__(self) -> "Trainer":
         return self
@@ -301,12 +272,42 @@ class Trainer:
                                lap_time, write, resume)
 
     def save_initial_checkpoint(self) -> None:
-        """Checkpoint 0 (untrained weights): a brand-new folder is loadable from the start."""
+        """Checkpoint 0 (untrained weights), written when this returns: a brand-new folder is loadable
+        from the start."""
         self._emit("on_checkpoint", self._checkpoint(None))
+        self.wait_for_listeners()
+
+    def wait_for_listeners(self, during: BaseException | None = None) -> None:
+        """Wait until the listeners that write in the background (those with a ``wait`` method, e.g.
+        :class:`laplab.train.background.BackgroundListeners`) have written everything handed to them;
+        a failed write raises here, or, ``during`` an exception that already ends the job, is added to
+        its notes."""
+        for listener in self._listeners:
+            wait = getattr(listener, "wait", None)
+            if wait is None:
+                continue
+            if during is None:
+                wait()
+                continue
+            try:
+                wait()
+            except Exception as exc:  # noqa: BLE001 - the job already fails with ``during``
+                during.add_note(f"the model folder's writer failed too: {type(exc).__name__}: {exc}")
 
     # -- the loop ------------------------------------------------------------------------------
 
     def run(self, callbacks: tuple[Callback, ...] = (), should_stop: Callable[[], bool] = lambda: False) -> TrainResult:
+        """Train until a stop condition holds or ``should_stop()``; returns once the model folder's
+        files are all written (:meth:`wait_for_listeners`), however the job ends."""
+        try:
+            result = self._run(callbacks, should_stop)
+        except BaseException as exc:
+            self.wait_for_listeners(during=exc)
+            raise
+        self.wait_for_listeners()
+        return result
+
+    def _run(self, callbacks: tuple[Callback, ...], should_stop: Callable[[], bool]) -> TrainResult:
         cfg, hp = self.config, self.hp
         started = time.perf_counter()
         reason, error = "max_time", None

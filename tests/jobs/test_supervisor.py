@@ -24,6 +24,14 @@ def reward_function(params):
 '''
 
 
+def _checkpointed(folder) -> bool:
+    """Iteration 1's files are written: a simtrace and a checkpoint after checkpoint 0."""
+    if not folder.list_training_iterations() or not folder.deepracer_checkpoints.exists():
+        return False
+    last = CheckpointStore(folder).last()
+    return last is not None and last.name != "0_Step-0.ckpt"
+
+
 def start_job(laplab_cli, tmp_path, tiny_hp, name, body, *extra):
     trigger = tmp_path / f"{name}.go"
     reward = tmp_path / f"{name}.py"
@@ -32,7 +40,9 @@ def start_job(laplab_cli, tmp_path, tiny_hp, name, body, *extra):
                       "--max-time", "10m", "--quiet", *extra)
     folder = model_folder(name)
     deadline = time.time() + 150
-    while time.time() < deadline and not folder.list_training_iterations():
+    # an iteration's files are written on the folder's writer thread while the next one runs: wait for
+    # its checkpoint (written after its simtrace), which a process killed outright keeps
+    while time.time() < deadline and not _checkpointed(folder):
         assert proc.poll() is None, proc.communicate()
         time.sleep(0.2)
     trigger.write_text("go")
@@ -152,7 +162,9 @@ def test_sigint_to_the_supervisor_stops_the_job_cleanly(laplab_cli, tiny_hp):
     proc = laplab_cli("train", "--name", "intr", "--hyperparameters", tiny_hp, "--max-time", "10m", "--quiet")
     folder = model_folder("intr")
     deadline = time.time() + 150
-    while time.time() < deadline and not folder.list_training_iterations():
+    # an iteration's files are written on the folder's writer thread while the next one runs: wait for
+    # its checkpoint (written after its simtrace), which a process killed outright keeps
+    while time.time() < deadline and not _checkpointed(folder):
         time.sleep(0.2)
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=150)
