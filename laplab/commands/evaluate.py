@@ -10,6 +10,8 @@ from rich import box
 from rich.console import Console
 from rich.table import Table
 
+from laplab.errors import UserError
+
 
 def _resets(text: str) -> int | None:
     if text.strip().lower() in ("unlimited", "none", "inf"):
@@ -81,7 +83,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace, console: Console, store_url: str | None) -> int:
-    from laplab.errors import UserError
     from laplab.evaluate.trials import EvaluationError, EvaluationSettings, evaluate_model
     from laplab.jobs.supervisor import report
     report(model=args.model, what="evaluation")
@@ -104,11 +105,10 @@ def _evaluate(args: argparse.Namespace, console: Console, store_url: str | None)
     return 0
 
 
-def _as_option_error(error) -> "UserError":
+def _as_option_error(error) -> UserError:
     """An evaluation setting's error as ``laplab evaluate`` reports it: its field is the option
     (``domain_randomization`` -> ``--domain-randomization``), and a message that starts with the
     setting's words (``domain randomization ...``) starts with the option instead."""
-    from laplab.errors import UserError
     if not error.field:
         return UserError(str(error))
     option, words = f"--{error.field.replace('_', '-')}", error.field.replace("_", " ")
