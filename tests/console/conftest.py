@@ -236,8 +236,9 @@ def signed_in_page(base_url: str, token: str, viewport: dict | None = None):
     with playwright_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True, timeout=60_000)
         try:
-            page = browser.new_context(**({"viewport": viewport} if viewport else {})).new_page()
-            page.set_default_timeout(30_000)
+            context = browser.new_context(**({"viewport": viewport} if viewport else {}))
+            context.set_default_timeout(30_000)  # for every page of it (a test may open a second)
+            page = context.new_page()
             page.goto(f"{base_url}/login")
             page.fill("#token", token)
             page.click("button[type=submit]")

@@ -9,10 +9,8 @@ import shutil
 
 import pytest
 
-playwright_api = pytest.importorskip("playwright.sync_api")
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update",
-        "--disable-sync", "--disable-dev-shm-usage"]
+from tests.console.conftest import signed_in_page
+
 BROKEN = "def reward_function(params):\n    speed = params['speed']\n    return speed * undefined_thing\n"
 
 pytestmark = pytest.mark.skipif(not shutil.which("chromium"), reason="chromium is not installed (apt-get install chromium)")
@@ -20,19 +18,8 @@ pytestmark = pytest.mark.skipif(not shutil.which("chromium"), reason="chromium i
 
 @pytest.fixture
 def page(console, admin_token):
-    with playwright_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS, headless=True, timeout=60_000)
-        try:
-            context = browser.new_context(viewport={"width": 1360, "height": 900})
-            context.set_default_timeout(30_000)
-            page = context.new_page()
-            page.goto(f"{console.url}/login")
-            page.fill("#token", admin_token)
-            page.click("button[type=submit]")
-            page.wait_for_url(f"{console.url}/")
-            yield page
-        finally:
-            browser.close()
+    with signed_in_page(console.url, admin_token, viewport={"width": 1360, "height": 900}) as page:
+        yield page
 
 
 def shot(page, tmp_path, name):
