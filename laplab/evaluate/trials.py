@@ -256,8 +256,8 @@ def randomization_for(settings: EvaluationSettings, sensors: tuple[str, ...]):
     ``sensors``; refused, naming the setting, for a model that has no camera to randomise."""
     if not settings.domain_randomization:
         return None
-    from laplab.env.metadata import CAMERA_SENSORS
-    if not any(sensor in CAMERA_SENSORS for sensor in sensors):
+    from laplab.env.metadata import camera_sensor
+    if camera_sensor(sensors) is None:
         raise EvaluationError(
             f"domain randomization changes what a camera sees, and this model has no camera (sensors: "
             f"{', '.join(sensors)}): evaluate it without domain randomization", field="domain_randomization")

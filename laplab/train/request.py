@@ -188,11 +188,10 @@ class TrainRequest:
 def _check_randomization(config) -> None:
     """A :class:`RequestError` naming ``domain_randomization`` when ``config`` asks for it and its model
     has no camera (nothing would be randomised: laplab evaluate refuses it alike)."""
-    from laplab.env.metadata import CAMERA_SENSORS
-    sensors = config.model_metadata.sensors
-    if config.domain_randomization and not any(sensor in CAMERA_SENSORS for sensor in sensors):
+    metadata = config.model_metadata
+    if config.domain_randomization and metadata.camera is None:
         raise RequestError(f"domain randomization changes what a camera sees, and this model has no camera "
-                           f"(sensors: {', '.join(sensors)}): train it without domain randomization, or pick a "
+                           f"(sensors: {', '.join(metadata.sensors)}): train it without domain randomization, or pick a "
                            f"camera sensor", field="domain_randomization")
 
 
