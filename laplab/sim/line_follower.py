@@ -200,11 +200,11 @@ class LineFollower:
         psi = psi + np.arctan(self._pivot_lead * self._curvature_at(s))  # the origin's path runs wide of the yaw
         correction = -p.lateral_gain * lateral - p.heading_gain * psi
         kappa = self._curvature_at(s + preview * speeds) + correction
-        wheel = self.wheel_for_curvature(kappa, speeds)
+        wheel = v.wheel_for_curvature(kappa, speeds)
         if known and v.steering_time_constant > 0:
             reach = 1.0 - math.exp(-v.dt / v.steering_time_constant)  # of the way to the command in a step
             wheel = steer + (wheel - steer) / reach
-        command = self.command_for_wheel(wheel)
+        command = v.command_for_wheel(wheel)
 
         speed_arc = s + p.speed_preview * v.dt * speeds
         speed = np.interp(np.mod(speed_arc, self.length), self.arc, self._closed_speeds)
@@ -215,20 +215,6 @@ class LineFollower:
             reach = 1.0 - math.exp(-p.speed_preview * v.dt / v.speed_time_constant)
             speed = speeds + (speed - speeds) / reach
         return command, np.clip(speed / v.speed_ratio, 0.0, v.max_speed)
-
-    def wheel_for_curvature(self, kappa: np.ndarray, speeds: np.ndarray) -> np.ndarray:
-        """Wheel angle (rad, after the saturation) whose path curvature is ``kappa`` at ``speeds``."""
-        v = self.vehicle
-        return np.arctan(kappa * (1.0 + v.understeer * speeds * speeds) * v.wheelbase / v.steering_gain) \
-            - v.steering_offset
-
-    def command_for_wheel(self, wheel: np.ndarray) -> np.ndarray:
-        """Steering command (rad, within the lock) whose saturated target is the wheel angle ``wheel``."""
-        v = self.vehicle
-        if v.steering_saturation_deg > 0:
-            saturation = math.radians(v.steering_saturation_deg)
-            wheel = saturation * np.arctanh(np.clip(wheel / saturation, -0.999999, 0.999999))
-        return np.clip(wheel, -v.max_steering, v.max_steering)
 
 
 @dataclass(frozen=True)
@@ -255,8 +241,8 @@ def start_on_line(sim: Simulator, cars: np.ndarray, follower: LineFollower, flyi
     flying = np.broadcast_to(np.asarray(flying, dtype=bool), cars.shape)
     sim.reset(np.isin(np.arange(sim.num_cars), cars), ndist=0.0)
     speed = np.where(flying, follower.speeds[0], 0.0)
-    wheel = np.where(flying, follower.wheel_for_curvature(follower.curvature[0], follower.speeds[0]), 0.0)
-    command = np.where(flying, follower.command_for_wheel(wheel), 0.0)
+    wheel = np.where(flying, follower.vehicle.wheel_for_curvature(follower.curvature[0], follower.speeds[0]), 0.0)
+    command = np.where(flying, follower.vehicle.command_for_wheel(wheel), 0.0)
     sim.place(cars, np.tile(follower.start_pose, (cars.size, 1)), speed=speed, steer=wheel, cmd_steer=command,
               cmd_speed=speed / sim.vehicle.speed_ratio)
     st = sim.state

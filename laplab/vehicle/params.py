@@ -130,10 +130,21 @@ class VehicleParams:
     def steering_for_curvature(self, kappa, speed):
         """Steering command (rad, clipped to the lock) whose steady state drives curvature ``kappa`` (1/m)
         at ``speed`` (m/s): :meth:`curvature` inverted, the grip cap aside (numpy arrays or floats)."""
+        return self.command_for_wheel(self.wheel_for_curvature(kappa, speed))
+
+    def wheel_for_curvature(self, kappa, speed):
+        """Wheel angle (rad, after the saturation) whose path curvature is ``kappa`` (1/m) at ``speed``
+        (m/s): the first half of :meth:`steering_for_curvature` (numpy arrays or floats)."""
         import numpy as np
         kappa, speed = np.asarray(kappa, dtype=np.float64), np.asarray(speed, dtype=np.float64)
         wheel = np.arctan(kappa * (1.0 + self.understeer * speed * speed) * self.wheelbase / self.steering_gain)
-        wheel = wheel - self.steering_offset
+        return wheel - self.steering_offset
+
+    def command_for_wheel(self, wheel):
+        """Steering command (rad, clipped to the lock) whose saturated target is the wheel angle
+        ``wheel`` (rad): the second half of :meth:`steering_for_curvature`."""
+        import numpy as np
+        wheel = np.asarray(wheel, dtype=np.float64)
         if self.steering_saturation_deg > 0:
             saturation = math.radians(self.steering_saturation_deg)
             wheel = saturation * np.arctanh(np.clip(wheel / saturation, -0.999999, 0.999999))
