@@ -78,8 +78,9 @@ class ObservationBuilder:
                     raise ValueError(f"the simulator's STATE vector has {sim.obs.shape[1]} values, the model's "
                                      f"observation space {size}")
                 # a model trained without objects (a time trial) drives among them without their summary
-                self._parts[sensor] = (box, (lambda cars: sim.obs[cars]) if sim.obs.shape[1] == size
-                                       else (lambda cars: sim.obs[cars, :size]))
+                # np.take: a fraction of the time of fancy indexing for a whole batch
+                self._parts[sensor] = (box, (lambda cars: sim.obs.take(cars, axis=0)) if sim.obs.shape[1] == size
+                                       else (lambda cars: sim.obs[:, :size].take(cars, axis=0)))
             elif sensor in LIDAR_SENSORS:
                 self._parts[sensor] = (box, self._lidar_reader(sensor, spec.lidar_config))
             elif sensor in CAMERA_SENSORS:

@@ -38,7 +38,7 @@ def _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count,
     st.cmd_steer[i], st.cmd_speed[i] = cmd_steer[i], cmd_speed[i]
     c, s = math.cos(yaw), math.sin(yaw)
     rx, ry = x + ref_offset * c, y + ref_offset * s
-    seg, t, arc, lateral, _ = project_point(rx, ry, segments, arc_length, far_gap, window, st.segment[i])
+    seg, t, arc, lateral, distance = project_point(rx, ry, segments, arc_length, far_gap, window, st.segment[i])
     st.ref_x[i], st.ref_y[i] = rx, ry
     st.segment[i], st.seg_t[i], st.lateral[i] = seg, t, lateral
 
@@ -55,11 +55,18 @@ def _step_car(i, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count,
     st.progress[i] = progress
     st.steps[i] += 1
 
-    wheels = 0
-    for fx, fy in ((wheelbase, half_track), (wheelbase, -half_track), (0.0, half_track), (0.0, -half_track)):
-        wx, wy = x + c * fx - s * fy, y + s * fx + c * fy
-        if point_on_road_near(wx, wy, geo, seg):
-            wheels += 1
+    # Every wheel lies within wheel_reach of the reference point, which lies ``distance`` from its
+    # projection on segment ``seg``; when that sum is under the segment's clearance all four are on
+    # the road and the border tests are skipped (most steps of most cars).
+    wheel_reach = math.hypot(max(abs(wheelbase - ref_offset), abs(ref_offset)), half_track)
+    if distance + wheel_reach < geo.clearance[seg] - 1e-6:
+        wheels = 4
+    else:
+        wheels = 0
+        for fx, fy in ((wheelbase, half_track), (wheelbase, -half_track), (0.0, half_track), (0.0, -half_track)):
+            wx, wy = x + c * fx - s * fy, y + s * fx + c * fy
+            if point_on_road_near(wx, wy, geo, seg):
+                wheels += 1
     st.wheels_on[i] = wheels
 
     st.reverse_count[i] = st.reverse_count[i] + 1 if delta < -1e-9 else 0
@@ -112,6 +119,42 @@ def step_kernel(st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, 
         _step_parallel(8 * nb.get_num_threads(), st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing)
     else:
         _step_range(0, n, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing)
+
+
+@nb.njit(cache=True)
+def place_kernel(st, cars, start_arc, geo, vc, obs, look_count, look_spacing):
+    """Start new episodes for ``cars`` (K,) all driving ``geo``'s direction: each at rest with its
+    origin on the centre line at ``start_arc`` (K,) m, facing along it, its reference point projected,
+    and its STATE row written. Progress counts from the start (the reference point is already
+    ``reference_offset`` along, as in DeepRacer)."""
+    centerline, arc_length, length = geo.centerline, geo.arc_length, geo.length
+    ref_offset, max_speed, max_steer = vc[20], vc[22], vc[23]
+    last = centerline.shape[0] - 2
+    for k in range(cars.shape[0]):
+        i, s0 = cars[k], start_arc[k]
+        s = s0 % length
+        x = np.interp(s, arc_length, centerline[:, 0])
+        y = np.interp(s, arc_length, centerline[:, 1])
+        seg = min(max(np.searchsorted(arc_length, s, side="right") - 1, 0), last)
+        yaw = math.atan2(centerline[seg + 1, 1] - centerline[seg, 1], centerline[seg + 1, 0] - centerline[seg, 0])
+        st.x[i], st.y[i], st.yaw[i] = x, y, yaw
+        st.speed[i] = st.steer[i] = st.cmd_steer[i] = st.cmd_speed[i] = 0.0
+        st.travel[i] = st.progress[i] = st.lap_time[i] = 0.0
+        st.steps[i] = st.reverse_count[i] = st.immobile_count[i] = 0
+        c, sn = math.cos(yaw), math.sin(yaw)
+        rx, ry = x + c * ref_offset - sn * 0.0, y + sn * ref_offset + c * 0.0
+        seg, _, arc, lateral, _ = project_point(rx, ry, geo.segments, arc_length, geo.far_gap, geo.window, seg)
+        start = arc_length[seg]
+        unwrapped = arc + length if arc < start else arc
+        seg_t = min(max((unwrapped - start) / max(arc_length[seg + 1] - start, 1e-12), 0.0), 1.0)
+        st.ref_x[i], st.ref_y[i], st.arc[i], st.segment[i], st.lateral[i], st.seg_t[i] = rx, ry, arc, seg, lateral, seg_t
+        st.start_arc[i] = s0
+        st.travel[i] = (arc - s0 + 0.5 * length) % length - 0.5 * length
+        st.wheels_on[i] = 4
+        st.status[i] = IN_PROGRESS
+        if obs.shape[1] > 0:
+            write_state_vector(obs[i], 0.0, 0.0, rx, ry, yaw, seg, seg_t, arc, lateral, centerline, arc_length,
+                               geo.left_width, geo.right_width, max_speed, max_steer, look_count, look_spacing)
 
 
 @nb.njit(cache=True)

@@ -7,7 +7,7 @@ from functools import cached_property
 import numpy as np
 
 from laplab.sensors.state_vector import StateSensorParams
-from laplab.sim.kernel import empty_obs, observe_kernel, step_kernel
+from laplab.sim.kernel import empty_obs, observe_kernel, place_kernel, step_kernel
 from laplab.sim.collision import summary_size
 from laplab.sim.obstacles import Obstacles, no_obstacles
 from laplab.sim.race_type import HEAD_TO_MODEL, RaceType
@@ -136,11 +136,11 @@ class Simulator:
                 self._place(sel, d, ndist[direction == d])
         self._episodes_done[cars] += 1
         st.episode[cars] += 1
-        if self.field is not None:
+        if self.field is not None:  # cars may move beside an obstacle: their rows are written again
             self.field.reset(cars, st.direction[cars])
             self._start_beside_obstacles(cars)
             self.field.update(st, np.arange(self.num_cars) if self.race.kind == HEAD_TO_MODEL else cars, self.ghost)
-        self._observe(cars)
+            self._observe(cars)
 
     def _start_beside_obstacles(self, cars: np.ndarray) -> None:
         """DeepRacer's start rule: a car whose start has an obstacle within 1 m (along the track) starts
@@ -201,23 +201,11 @@ class Simulator:
         return proj
 
     def _place(self, cars: np.ndarray, direction: int, ndist: np.ndarray) -> None:
-        st, track = self.state, self.tracks[direction]
-        s0 = np.mod(ndist, 1.0) * track.length
-        origin = track.point_at(s0)
-        yaw = track.heading_at(s0)
-        st.x[cars], st.y[cars], st.yaw[cars] = origin[:, 0], origin[:, 1], yaw
-        for field in (st.speed, st.steer, st.cmd_steer, st.cmd_speed, st.travel, st.progress, st.lap_time):
-            field[cars] = 0.0
-        for field in (st.steps, st.reverse_count, st.immobile_count):
-            field[cars] = 0
-        proj = self._project_reference(cars, direction, np.column_stack([origin, yaw]))
-        st.start_arc[cars] = s0
-        # DeepRacer's start_ndist is the start pose's own centre-line point (the origin, not the
-        # reference point 0.14 m ahead): the car begins its lap that far along already. Progress stays
-        # 0 until the first step computes it, as simapp's current_progress does after a reset.
-        st.travel[cars] = wrapped_travel(proj.arc_length - s0, track.length)
-        st.wheels_on[cars] = 4
-        st.status[cars] = IN_PROGRESS
+        """Start episodes of ``cars`` (all driving ``direction``) at rest at ``ndist`` of the lap, their
+        STATE rows written (:func:`place_kernel`)."""
+        start_arc = np.mod(ndist, 1.0) * self.tracks[direction].length
+        place_kernel(self.state, np.ascontiguousarray(cars, dtype=np.int64), np.ascontiguousarray(start_arc),
+                     self.arrays[direction], self._vc, self.obs, *self._look)
 
     def place(self, cars: np.ndarray, poses: np.ndarray, *, speed=0.0, steer=0.0, cmd_speed=None,
               cmd_steer=None, steps=None, start_arc=None) -> None:

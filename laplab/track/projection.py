@@ -31,6 +31,7 @@ class TrackArrays(NamedTuple):
     left_border: np.ndarray  # (L, 5) the left border's segments (driving direction), as ``segments``
     right_border: np.ndarray  # (R, 5) the right border's segments
     border_anchor: np.ndarray  # (N-1, 2) int64: left / right border segment nearest each centre segment
+    clearance: np.ndarray  # (N-1,) m: no border point lies nearer than this to the centre segment
 
 
 class Projection(NamedTuple):
@@ -48,9 +49,10 @@ def track_arrays(track: Track) -> TrackArrays:
     left, right = (track.inner, track.outer) if track.is_ccw else (track.outer, track.inner)
     mid = 0.5 * (c[:-1] + c[1:])
     anchor = np.stack([_nearest_segment(mid, left), _nearest_segment(mid, right)], axis=1)
-    return TrackArrays(c, track.arc_length, track.left_width, track.right_width, track.length, _segment_table(c),
-                       *_far_segment_gap(c, track.arc_length), _segment_table(left), _segment_table(right),
-                       anchor.astype(np.int64))
+    segments, left_border, right_border = _segment_table(c), _segment_table(left), _segment_table(right)
+    return TrackArrays(c, track.arc_length, track.left_width, track.right_width, track.length, segments,
+                       *_far_segment_gap(c, track.arc_length), left_border, right_border, anchor.astype(np.int64),
+                       _border_clearance(segments, left_border, right_border))
 
 
 def _segment_table(polyline: np.ndarray) -> np.ndarray:
@@ -107,6 +109,38 @@ def _far_segment_gap(centerline: np.ndarray, arc_length: np.ndarray) -> tuple[np
     dist = np.where(far, dist, np.inf)
     gap = dist.min(axis=1)
     return np.where(np.isfinite(gap), gap, np.inf), window
+
+
+@nb.njit(cache=True)
+def _border_clearance(segments, left_border, right_border):
+    """(M,) per centre segment, its distance to the nearest segment of either border, m (0 where they
+    cross). A disk of that radius around any point of the segment holds no border point, so it is road."""
+    out = np.empty(segments.shape[0])
+    for i in range(segments.shape[0]):
+        best = np.inf
+        for border in (left_border, right_border):
+            for j in range(border.shape[0]):
+                best = min(best, _segments_distance(segments, i, border, j))
+        out[i] = best
+    return out
+
+
+@nb.njit(cache=True, inline="always")
+def _segments_distance(first, i, second, j):
+    """Distance between segment i of ``first`` and segment j of ``second`` (segment tables), m."""
+    ax, ay, adx, ady = first[i, 0], first[i, 1], first[i, 2], first[i, 3]
+    bx, by, bdx, bdy = second[j, 0], second[j, 1], second[j, 2], second[j, 3]
+    # A proper crossing: each segment's ends lie strictly on both sides of the other's line.
+    o1 = adx * (by - ay) - ady * (bx - ax)
+    o2 = adx * (by + bdy - ay) - ady * (bx + bdx - ax)
+    o3 = bdx * (ay - by) - bdy * (ax - bx)
+    o4 = bdx * (ay + ady - by) - bdy * (ax + adx - bx)
+    if o1 * o2 < 0.0 and o3 * o4 < 0.0:
+        return 0.0
+    # Otherwise the nearest pair of points includes an end of one of them.
+    d2 = min(_segment_distance_sq(bx, by, first, i)[0], _segment_distance_sq(bx + bdx, by + bdy, first, i)[0],
+             _segment_distance_sq(ax, ay, second, j)[0], _segment_distance_sq(ax + adx, ay + ady, second, j)[0])
+    return np.sqrt(d2)
 
 
 @nb.njit(cache=True, inline="always")

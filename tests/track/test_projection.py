@@ -300,3 +300,57 @@ def test_on_track_matches_polygon_on_reference_tracks(reference_tracks):
         if count:
             failures.append(f"{track.name}: {count}/400 disagreements, up to {worst:.3f} m from a border; {example}")
     assert not failures, f"{len(failures)} tracks disagree with the polygon test:\n" + "\n".join(failures)
+
+
+# ---------------------------------------------------------------- clearance (the step kernel's shortcut)
+
+
+def _points_within_clearance(arrays, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` points, each within its centre segment's clearance of a point of that segment; (P, 2), (P,)."""
+    rng = np.random.default_rng(seed)
+    seg = rng.integers(0, arrays.segments.shape[0], count)
+    on_segment = arrays.segments[seg, :2] + rng.uniform(0, 1, count)[:, None] * arrays.segments[seg, 2:4]
+    angle = rng.uniform(0, 2 * np.pi, count)
+    radius = 0.999 * arrays.clearance[seg] * np.sqrt(rng.uniform(0, 1, count))
+    return on_segment + radius[:, None] * np.stack([np.cos(angle), np.sin(angle)], axis=1), seg
+
+
+def _clearance_failures(tracks: list[Track], count: int) -> list[str]:
+    from laplab.track.projection import point_on_road_near
+    failures = []
+    for k, track in enumerate(tracks):
+        for t in (track, track.reversed()):
+            arrays = track_arrays(t)
+            half_width = 0.5 * (t.left_width + t.right_width)
+            if not (0.0 < arrays.clearance.min() and np.median(arrays.clearance) <= 1.001 * np.median(half_width)):
+                failures.append(f"{t.name}: clearance {arrays.clearance.min():.3f}..{arrays.clearance.max():.3f} m")
+            points, seg = _points_within_clearance(arrays, count, seed=k)
+            near = np.array([point_on_road_near(x, y, arrays, s) for (x, y), s in zip(points, seg)])
+            on = points_on_track(arrays, points)
+            if not (near.all() and on.all()):
+                failures.append(f"{t.name}: {(~near).sum()} / {(~on).sum()} of {count} points within the clearance "
+                                "are off the road")
+    return failures
+
+
+def test_every_point_within_a_segments_clearance_is_on_the_road(circle_route, stadium_route):
+    tracks = synthetic_tracks(circle_route, stadium_route, coarse=True) + [load_track(n) for n in builtin_track_names()]
+    failures = _clearance_failures(tracks, 2000)
+    assert not failures, "\n".join(failures)
+    # the circle (radius 3 m, 1 m wide): a disk of the clearance reaches the borders and no further
+    arrays = track_arrays(track_from_route(circle_route(), "circle"))
+    np.testing.assert_allclose(arrays.clearance, 0.5, atol=0.01)
+
+
+def test_every_point_within_a_segments_clearance_is_on_the_road_on_reference_tracks(reference_tracks):
+    failures = _clearance_failures(list(reference_tracks.values()), 500)
+    assert not failures, "\n".join(failures)
+
+
+def test_clearance_is_zero_where_a_centre_segment_crosses_a_border():
+    from laplab.track.projection import _border_clearance, _segment_table
+    centre = _segment_table(np.array([[0.0, 0.0], [1.0, 0.0]]))
+    crossing = _segment_table(np.array([[0.5, -1.0], [0.5, 1.0]]))
+    apart = _segment_table(np.array([[0.5, 0.3], [2.0, 0.3]]))
+    assert _border_clearance(centre, crossing, apart)[0] == 0.0
+    assert _border_clearance(centre, apart, apart)[0] == pytest.approx(0.3)
