@@ -39,9 +39,9 @@ def test_wheels_on_track_skip_the_border_tests_only_where_those_would_count_four
     rng = np.random.default_rng(5)
     checked = shortcut = 0
     for name in ("technical", "classic_2018"):
-        sim = Simulator(load_track(name), 300)
+        sim = Simulator(load_track(name), 200)
         sim.reset()
-        for _ in range(80):
+        for _ in range(50):
             was = sim.state.status == IN_PROGRESS
             sim.step(rng.uniform(-0.52, 0.52, sim.num_cars), rng.uniform(0.5, 4.0, sim.num_cars))
             st = sim.state
@@ -54,4 +54,4 @@ def test_wheels_on_track_skip_the_border_tests_only_where_those_would_count_four
                 checked += 1
                 shortcut += abs(st.lateral[car]) + 0.12 < geo.clearance[st.segment[car]]
             sim.reset(st.status != IN_PROGRESS)
-    assert checked > 30_000 and shortcut > checked // 3  # both ways taken many times
+    assert checked > 12_000 and shortcut > checked // 3  # both ways taken many times
