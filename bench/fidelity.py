@@ -114,8 +114,11 @@ def main() -> int:
         print(f"error: the logged positions lie {off_route:.2f} m (median) from {track.name}'s centre line: "
               f"these logs ran on another track", file=sys.stderr)
         return 2
-    if args.clock == "fixed":
-        windows = replace(windows, times=windows.times[:, :1] + np.arange(windows.times.shape[1]) / 15.0)
+    if args.clock == "fixed":  # every step 1/15 s, the starting speed's step too
+        lead = windows.lead
+        step_before = windows.times[:, lead] - windows.times[:, lead - 1]
+        windows = replace(windows, times=windows.times[:, :1] + np.arange(windows.times.shape[1]) / 15.0,
+                          speed0=windows.speed0 * step_before * 15.0)
     print(f"host: {host_line()}")
     print(f"{len(paths)} simtrace files below {root}, track {track.name} ({track.length:.2f} m), "
           f"{args.clock} clock, windows of {args.horizon} actions")

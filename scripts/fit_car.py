@@ -44,6 +44,8 @@ def main() -> None:
     parser.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                         help="hold a parameter (e.g. max_lateral_acceleration=4.9: mu 0.5 of the URDF times g)")
     parser.add_argument("--delays", default="0,0.25,0.5,0.75,1", help="action delays to try (fractions of a step)")
+    parser.add_argument("--f-scale", type=float, default=0.1, metavar="M",
+                        help="soft-L1 scale, m: errors beyond it count linearly (smaller: nearer the median's fit)")
     args = parser.parse_args()
     paths = [p for folder in args.simtrace for p in find_simtraces(folder)]
     windows = build_windows(paths)
@@ -58,7 +60,7 @@ def main() -> None:
     for delay in [float(d) for d in args.delays.split(',')]:
         start_car = base.with_(action_delay=delay, steering_saturation_deg=base.steering_saturation_deg or 40.0)
         x0 = np.clip([getattr(start_car, n) for n in names], lower + 1e-6, upper - 1e-6)
-        result = least_squares(residuals, x0, bounds=(lower, upper), loss="soft_l1", f_scale=0.1,
+        result = least_squares(residuals, x0, bounds=(lower, upper), loss="soft_l1", f_scale=args.f_scale,
                                args=(names, start_car, fit_set), diff_step=1e-3, max_nfev=400)
         car = start_car.with_(**dict(zip(names, result.x)))
         fitted = score(car, fit_set)
