@@ -101,7 +101,9 @@ def rewards_for(builder: ParamsBuilder, reward_fn: Callable[[dict], float], cars
     with gc_paused():
         params = builder.build(cars)
         rewards = [call(p) for p in params]
-    return rewards, (params if keep else None)
+        if not keep:  # freed while the collector is paused, so resuming it finds no backlog to walk
+            params = None
+    return rewards, params
 
 
 
