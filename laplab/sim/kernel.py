@@ -125,8 +125,9 @@ def step_kernel(st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, 
 def place_kernel(st, cars, start_arc, geo, vc, obs, look_count, look_spacing):
     """Start new episodes for ``cars`` (K,) all driving ``geo``'s direction: each at rest with its
     origin on the centre line at ``start_arc`` (K,) m, facing along it, its reference point projected,
-    and its STATE row written. Progress counts from the start (the reference point is already
-    ``reference_offset`` along, as in DeepRacer)."""
+    and its STATE row written. As in DeepRacer, the lap counts from the origin's own centre-line point
+    (``start_ndist``), so the reference point starts ``reference_offset`` along it; progress stays 0
+    until the first step computes it, as simapp's ``current_progress`` does after a reset."""
     centerline, arc_length, length = geo.centerline, geo.arc_length, geo.length
     ref_offset, max_speed, max_steer = vc[20], vc[22], vc[23]
     last = centerline.shape[0] - 2
@@ -142,7 +143,7 @@ def place_kernel(st, cars, start_arc, geo, vc, obs, look_count, look_spacing):
         st.travel[i] = st.progress[i] = st.lap_time[i] = 0.0
         st.steps[i] = st.reverse_count[i] = st.immobile_count[i] = 0
         c, sn = math.cos(yaw), math.sin(yaw)
-        rx, ry = x + c * ref_offset - sn * 0.0, y + sn * ref_offset + c * 0.0
+        rx, ry = x + ref_offset * c, y + ref_offset * sn
         seg, _, arc, lateral, _ = project_point(rx, ry, geo.segments, arc_length, geo.far_gap, geo.window, seg)
         start = arc_length[seg]
         unwrapped = arc + length if arc < start else arc
