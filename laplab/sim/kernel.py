@@ -121,6 +121,14 @@ def step_kernel(st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, 
         _step_range(0, n, st, cmd_steer, cmd_speed, fwd, rev, vc, rules, obs, look_count, look_spacing)
 
 
+@nb.njit(cache=True, inline="always")
+def _observe_car(i, st, geo, vc, obs, look_count, look_spacing):
+    """Write car ``i``'s STATE row ``obs[i]`` from its state in ``st`` on ``geo`` (its direction's arrays)."""
+    write_state_vector(obs[i], st.speed[i], st.steer[i], st.ref_x[i], st.ref_y[i], st.yaw[i], st.segment[i],
+                       st.seg_t[i], st.arc[i], st.lateral[i], geo.centerline, geo.arc_length, geo.left_width,
+                       geo.right_width, vc[22], vc[23], look_count, look_spacing)
+
+
 @nb.njit(cache=True)
 def place_kernel(st, cars, start_arc, geo, vc, obs, look_count, look_spacing):
     """Start new episodes for ``cars`` (K,) all driving ``geo``'s direction: each at rest with its
@@ -129,7 +137,7 @@ def place_kernel(st, cars, start_arc, geo, vc, obs, look_count, look_spacing):
     (``start_ndist``), so the reference point starts ``reference_offset`` along it; progress stays 0
     until the first step computes it, as simapp's ``current_progress`` does after a reset."""
     centerline, arc_length, length = geo.centerline, geo.arc_length, geo.length
-    ref_offset, max_speed, max_steer = vc[20], vc[22], vc[23]
+    ref_offset = vc[20]
     last = centerline.shape[0] - 2
     for k in range(cars.shape[0]):
         i, s0 = cars[k], start_arc[k]
@@ -140,7 +148,7 @@ def place_kernel(st, cars, start_arc, geo, vc, obs, look_count, look_spacing):
         yaw = math.atan2(centerline[seg + 1, 1] - centerline[seg, 1], centerline[seg + 1, 0] - centerline[seg, 0])
         st.x[i], st.y[i], st.yaw[i] = x, y, yaw
         st.speed[i] = st.steer[i] = st.cmd_steer[i] = st.cmd_speed[i] = 0.0
-        st.travel[i] = st.progress[i] = st.lap_time[i] = 0.0
+        st.progress[i] = st.lap_time[i] = 0.0
         st.steps[i] = st.reverse_count[i] = st.immobile_count[i] = 0
         c, sn = math.cos(yaw), math.sin(yaw)
         rx, ry = x + ref_offset * c, y + ref_offset * sn
@@ -154,21 +162,15 @@ def place_kernel(st, cars, start_arc, geo, vc, obs, look_count, look_spacing):
         st.wheels_on[i] = 4
         st.status[i] = IN_PROGRESS
         if obs.shape[1] > 0:
-            write_state_vector(obs[i], 0.0, 0.0, rx, ry, yaw, seg, seg_t, arc, lateral, centerline, arc_length,
-                               geo.left_width, geo.right_width, max_speed, max_steer, look_count, look_spacing)
+            _observe_car(i, st, geo, vc, obs, look_count, look_spacing)
 
 
 @nb.njit(cache=True)
 def observe_kernel(st, fwd, rev, vc, obs, look_count, look_spacing, mask):
     """Fill ``obs`` rows of the cars in ``mask`` from their current state (after a reset)."""
-    max_speed, max_steer = vc[22], vc[23]
     for i in range(st.x.shape[0]):
         if mask[i] and obs.shape[1] > 0:
-            geo = fwd if st.direction[i] == 0 else rev
-            write_state_vector(obs[i], st.speed[i], st.steer[i], st.ref_x[i], st.ref_y[i], st.yaw[i],
-                               st.segment[i], st.seg_t[i], st.arc[i], st.lateral[i], geo.centerline,
-                               geo.arc_length, geo.left_width, geo.right_width, max_speed, max_steer,
-                               look_count, look_spacing)
+            _observe_car(i, st, fwd if st.direction[i] == 0 else rev, vc, obs, look_count, look_spacing)
 
 
 def empty_obs(num_cars: int, size: int) -> np.ndarray:
